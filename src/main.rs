@@ -1,0 +1,2 @@
+//! The `evitrack` command line.
+fn main() {}

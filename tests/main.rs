@@ -1,0 +1,8 @@
+//! Integration tests: one binary, one module per room.
+
+mod dataset;
+mod evidence;
+mod features;
+mod hmm;
+mod pipeline;
+mod sim;
