@@ -1,1 +1,97 @@
-//! (to be written)
+//! Reporting: error statistics, plain-text tables and PNG plots.
+//!
+//! Everything here works on plain numbers (positions in mm, errors, labels), so it knows nothing of
+//! how they were produced.
+
+mod plot;
+mod table;
+
+pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, PlotSeries};
+pub use table::Table;
+
+use serde::{Deserialize, Serialize};
+
+/// Failures while writing reports.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReportError {
+    /// A plot could not be drawn or written.
+    #[error("could not draw plot {path}: {message}")]
+    Plot {
+        /// The file being written.
+        path: String,
+        /// What the plotting library said.
+        message: String,
+    },
+    /// There is nothing to plot.
+    #[error("nothing to plot in {path}: {what}")]
+    Empty {
+        /// The file that was not written.
+        path: String,
+        /// What was missing.
+        what: String,
+    },
+}
+
+/// Summary statistics of a set of estimation errors, in mm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ErrorStats {
+    /// Number of errors summarised (frames with an estimate and a ground truth).
+    pub count: usize,
+    /// Mean error.
+    pub mean: f64,
+    /// Median error.
+    pub median: f64,
+    /// Root-mean-square error.
+    pub rms: f64,
+    /// Largest error.
+    pub max: f64,
+}
+
+impl ErrorStats {
+    /// Summarises the finite values of `errors`; `None` when there are none.
+    pub fn from_errors(errors: &[f64]) -> Option<Self> {
+        let mut finite: Vec<f64> = errors.iter().copied().filter(|e| e.is_finite()).collect();
+        if finite.is_empty() {
+            return None;
+        }
+        finite.sort_by(f64::total_cmp);
+        let count = finite.len();
+        let mean = finite.iter().sum::<f64>() / count as f64;
+        let rms = (finite.iter().map(|e| e * e).sum::<f64>() / count as f64).sqrt();
+        let median = if count % 2 == 1 {
+            finite[count / 2]
+        } else {
+            0.5 * (finite[count / 2 - 1] + finite[count / 2])
+        };
+        Some(Self {
+            count,
+            mean,
+            median,
+            rms,
+            max: finite[count - 1],
+        })
+    }
+}
+
+/// Euclidean distance between two planar points.
+pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_of_known_errors() {
+        let stats = ErrorStats::from_errors(&[3.0, 1.0, 2.0, 4.0, f64::NAN]).unwrap();
+        assert_eq!(stats.count, 4);
+        assert!((stats.mean - 2.5).abs() < 1e-12);
+        assert!((stats.median - 2.5).abs() < 1e-12);
+        assert!((stats.rms - (30.0f64 / 4.0).sqrt()).abs() < 1e-12);
+        assert_eq!(stats.max, 4.0);
+        assert!(ErrorStats::from_errors(&[f64::NAN]).is_none());
+        assert!(ErrorStats::from_errors(&[]).is_none());
+    }
+}

@@ -1,0 +1,340 @@
+//! PNG plots drawn offline with plotters and an embedded DejaVu font.
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::prelude::*;
+use plotters::style::{register_font, FontStyle};
+
+use super::ReportError;
+
+const FONT: &str = "sans-serif";
+const SIZE: (u32, u32) = (900, 760);
+static REGISTER_FONT: Once = Once::new();
+
+/// plotters renders text only through registered fonts when system fonts are off.
+fn ensure_font() {
+    REGISTER_FONT.call_once(|| {
+        // The embedded font is a valid TTF, so registration cannot fail in practice; if it did,
+        // drawing text would report the error through `ReportError::Plot`.
+        let _ = register_font(FONT, FontStyle::Normal, dejavu::sans::regular());
+    });
+}
+
+fn plot_error(path: &Path, error: impl std::fmt::Display) -> ReportError {
+    ReportError::Plot {
+        path: path.display().to_string(),
+        message: error.to_string(),
+    }
+}
+
+/// Range covering `values` with a 5% margin (and a unit range when all are equal).
+fn padded_range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    if !lo.is_finite() {
+        return None;
+    }
+    let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
+    Some((lo - pad, hi + pad))
+}
+
+/// True (grey) against estimated (black) positions, like the paper's Figure 2; the sample poses,
+/// when given, are drawn as faint crosses.
+pub fn plot_trajectory(
+    path: &Path,
+    title: &str,
+    truth: &[[f64; 2]],
+    estimate: &[Option<[f64; 2]>],
+    samples: Option<&[[f64; 2]]>,
+) -> Result<(), ReportError> {
+    ensure_font();
+    let estimated: Vec<[f64; 2]> = estimate.iter().flatten().copied().collect();
+    let all = || {
+        truth
+            .iter()
+            .chain(&estimated)
+            .chain(samples.unwrap_or(&[]).iter())
+    };
+    let (Some(x_range), Some(y_range)) = (
+        padded_range(all().map(|p| p[0])),
+        padded_range(all().map(|p| p[1])),
+    ) else {
+        return Err(ReportError::Empty {
+            path: path.display().to_string(),
+            what: "no finite positions".into(),
+        });
+    };
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT, 24))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
+        .map_err(|e| plot_error(path, e))?;
+    chart
+        .configure_mesh()
+        .x_desc("x (mm)")
+        .y_desc("y (mm)")
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 17))
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    let light = RGBColor(200, 200, 230);
+    let grey = RGBColor(150, 150, 150);
+    if let Some(samples) = samples {
+        chart
+            .draw_series(
+                samples
+                    .iter()
+                    .map(|p| Cross::new((p[0], p[1]), 3, light.stroke_width(1))),
+            )
+            .map_err(|e| plot_error(path, e))?
+            .label("sample poses")
+            .legend(move |(x, y)| Cross::new((x + 10, y), 3, light.stroke_width(1)));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            truth.iter().map(|p| (p[0], p[1])),
+            grey.stroke_width(2),
+        ))
+        .map_err(|e| plot_error(path, e))?
+        .label("true position")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], grey.stroke_width(2)));
+    chart
+        .draw_series(
+            estimated
+                .iter()
+                .map(|p| Circle::new((p[0], p[1]), 2, BLACK.filled())),
+        )
+        .map_err(|e| plot_error(path, e))?
+        .label("estimate")
+        .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 15))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    root.present().map_err(|e| plot_error(path, e))
+}
+
+/// A named line of (x, y) points for [`plot_series`].
+#[derive(Debug, Clone)]
+pub struct PlotSeries {
+    /// Legend label.
+    pub name: String,
+    /// The points, in drawing order.
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Lines with point markers, one per series, with a legend.
+pub fn plot_series(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[PlotSeries],
+) -> Result<(), ReportError> {
+    ensure_font();
+    let points = || series.iter().flat_map(|s| s.points.iter());
+    let (Some(x_range), Some(y_range)) = (
+        padded_range(points().map(|p| p.0)),
+        padded_range(points().map(|p| p.1).chain([0.0])),
+    ) else {
+        return Err(ReportError::Empty {
+            path: path.display().to_string(),
+            what: "no finite points".into(),
+        });
+    };
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT, 24))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
+        .map_err(|e| plot_error(path, e))?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 17))
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    for (i, line) in series.iter().enumerate() {
+        let colour = Palette99::pick(i).to_rgba();
+        chart
+            .draw_series(LineSeries::new(
+                line.points.iter().copied(),
+                colour.stroke_width(2),
+            ))
+            .map_err(|e| plot_error(path, e))?
+            .label(line.name.clone())
+            .legend(move |(x, y)| {
+                PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+        chart
+            .draw_series(
+                line.points
+                    .iter()
+                    .map(|&p| Circle::new(p, 4, colour.filled())),
+            )
+            .map_err(|e| plot_error(path, e))?;
+    }
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 15))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    root.present().map_err(|e| plot_error(path, e))
+}
+
+/// Mean error per variant as bars; `reference` values (e.g. the paper's figures), when given, are
+/// drawn as red markers beside them.
+pub fn plot_errors_by_variant(
+    path: &Path,
+    title: &str,
+    labels: &[String],
+    errors: &[f64],
+    reference: Option<&[Option<f64>]>,
+) -> Result<(), ReportError> {
+    ensure_font();
+    if labels.is_empty() || labels.len() != errors.len() {
+        return Err(ReportError::Empty {
+            path: path.display().to_string(),
+            what: format!("{} labels for {} errors", labels.len(), errors.len()),
+        });
+    }
+    let top = errors
+        .iter()
+        .chain(reference.unwrap_or(&[]).iter().flatten())
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max)
+        .max(1e-3)
+        * 1.15;
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
+    let n = labels.len();
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, (FONT, 24))
+        .margin(15)
+        .x_label_area_size(60)
+        .y_label_area_size(60)
+        .build_cartesian_2d(-0.5f64..(n as f64 - 0.5), 0.0..top)
+        .map_err(|e| plot_error(path, e))?;
+    let label_of = |x: &f64| {
+        let i = x.round();
+        if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
+            labels[i as usize].clone()
+        } else {
+            String::new()
+        }
+    };
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(n.max(2) * 2 + 1)
+        .x_label_formatter(&label_of)
+        .y_desc("mean error (mm)")
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 17))
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    let bar = RGBColor(70, 110, 170);
+    chart
+        .draw_series(errors.iter().enumerate().map(|(i, &e)| {
+            let x = i as f64;
+            Rectangle::new([(x - 0.3, 0.0), (x + 0.3, e.max(0.0))], bar.filled())
+        }))
+        .map_err(|e| plot_error(path, e))?
+        .label("this rig")
+        .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], bar.filled()));
+    if let Some(reference) = reference {
+        chart
+            .draw_series(
+                reference
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, r)| r.map(|r| (i as f64, r)))
+                    .map(|p| TriangleMarker::new(p, 8, RED.filled())),
+            )
+            .map_err(|e| plot_error(path, e))?
+            .label("paper")
+            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, RED.filled()));
+    }
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 15))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    root.present().map_err(|e| plot_error(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trajectory_plot_is_written_as_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("track.png");
+        let truth: Vec<[f64; 2]> = (0..50)
+            .map(|i| {
+                let t = i as f64 / 8.0;
+                [5.0 * t.cos(), 47.0 + 5.0 * t.sin()]
+            })
+            .collect();
+        let estimate: Vec<Option<[f64; 2]>> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i % 7 != 0).then_some([p[0] + 0.3, p[1] - 0.2]))
+            .collect();
+        plot_trajectory(&path, "test", &truth, &estimate, Some(&truth[..5])).unwrap();
+        let image = image::open(&path).unwrap();
+        assert_eq!((image.width(), image.height()), SIZE);
+    }
+
+    #[test]
+    fn empty_inputs_are_errors_not_panics() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("none.png");
+        assert!(matches!(
+            plot_trajectory(&path, "t", &[], &[None], None),
+            Err(ReportError::Empty { .. })
+        ));
+        assert!(plot_errors_by_variant(&path, "t", &[], &[], None).is_err());
+        assert!(plot_series(&path, "t", "x", "y", &[]).is_err());
+    }
+
+    #[test]
+    fn bar_and_line_plots_are_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let bars = dir.path().join("bars.png");
+        let labels = vec!["a".to_string(), "b".to_string()];
+        plot_errors_by_variant(&bars, "t", &labels, &[1.0, 2.0], Some(&[Some(2.3), None]))
+            .unwrap();
+        assert!(image::open(&bars).is_ok());
+        let lines = dir.path().join("lines.png");
+        let series = [PlotSeries {
+            name: "f".into(),
+            points: vec![(2.0, 1.5), (3.0, 1.2), (4.0, 1.1)],
+        }];
+        plot_series(&lines, "t", "states", "error", &series).unwrap();
+        assert!(image::open(&lines).is_ok());
+    }
+}
