@@ -283,6 +283,11 @@ impl Dataset {
             .collect()
     }
 
+    /// Ground truth of every frame, or `None` if any frame has no truth.
+    pub fn truths(&self) -> Option<Vec<Truth>> {
+        self.frames.iter().map(|f| f.truth).collect()
+    }
+
     /// The images, in order.
     pub fn images(&self) -> impl Iterator<Item = &GrayImage> {
         self.frames.iter().map(|f| &f.image)

@@ -71,6 +71,8 @@ fn simulated_dataset_round_trip() {
 #[test]
 fn truth_positions_need_every_frame() {
     assert!(small_dataset(false).truth_positions().is_none());
+    assert!(small_dataset(false).truths().is_none());
+    assert_eq!(small_dataset(true).truths().unwrap().len(), 5);
     let p = small_dataset(true).truth_positions().unwrap();
     assert_eq!(p[0], [-9.5, 38.0]);
 }

@@ -54,6 +54,13 @@ fn settled_end_effector_matches_command_and_forward_kinematics() {
             e_fk < 1e-3,
             "FK of simulated angles off by {e_fk} mm at ({x}, {y})"
         );
+        let ik = fb.inverse(x, y).unwrap();
+        let e_th = (ik[0] - t.theta1).abs().max((ik[1] - t.theta2).abs());
+        assert!(
+            e_th < 1e-4,
+            "simulated angles {:?} vs IK {ik:?}",
+            [t.theta1, t.theta2]
+        );
     }
 }
 

@@ -238,19 +238,17 @@ impl Robot {
         [p.x as f64, p.y as f64]
     }
 
-    /// Ground truth read from the simulated bodies: end-effector position and motor angles.
+    /// Ground truth read from the simulated bodies: end-effector position and motor angles
+    /// (`θ1 ∈ (0, 2π]`, `θ2 ∈ (−π, π]`, as returned by [`FiveBar::inverse`]).
     pub fn truth(&self) -> Truth {
         let [x, y] = self.end_effector();
         let r1 = self.world.bodies[self.prox[0]].rotation().angle() as f64;
         let r2 = self.world.bodies[self.prox[1]].rotation().angle() as f64;
-        let mut theta1 = r1 + PI;
-        if theta1 > PI {
-            theta1 -= 2.0 * PI;
-        }
+        // r1 ∈ (−π, π]: θ1 ∈ (0, 2π], the range of the elbows-out inverse kinematics.
         Truth {
             x,
             y,
-            theta1,
+            theta1: r1 + PI,
             theta2: r2,
         }
     }
