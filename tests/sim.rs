@@ -132,6 +132,14 @@ fn same_seed_gives_byte_identical_frames() {
     let b = sim::simulate(&s, &m, 11, &mut |_, _| {}).unwrap();
     let c = sim::simulate(&s, &m, 12, &mut |_, _| {}).unwrap();
     assert_eq!(a.len(), 16);
+    let nodes = m.targets(&Geometry::default().check().unwrap()).unwrap();
+    let mut last_t = -1.0;
+    for (f, n) in a.frames.iter().zip(&nodes) {
+        let tr = f.truth.unwrap();
+        assert!((tr.x - n.x).hypot(tr.y - n.y) < 1e-3, "frame off its node");
+        assert!(f.t > last_t, "frame times increase");
+        last_t = f.t;
+    }
     for (fa, fb) in a.frames.iter().zip(&b.frames) {
         assert_eq!(fa.image.as_raw(), fb.image.as_raw());
         assert_eq!(fa.truth, fb.truth);

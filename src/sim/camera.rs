@@ -497,6 +497,56 @@ mod tests {
     }
 
     #[test]
+    fn illumination_gradient_and_blur_act_where_expected() {
+        let c = cam();
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let lit = NoiseSettings {
+            illumination_gradient: Some([0.2, 0.0]),
+            ..NoiseSettings::none()
+        };
+        let img = c.render(&Scene::default(), &lit, &mut rng).unwrap();
+        // gain 0.9 on the left edge, 1.1 on the right edge, of background 30
+        assert_eq!(img.get_pixel(0, 60).0[0], 27);
+        assert_eq!(img.get_pixel(169, 60).0[0], 33);
+        let disc = Scene {
+            parts: vec![(
+                Part::EndEffector,
+                Primitive::Disc {
+                    centre: [0.0, 47.5],
+                    radius: 2.0,
+                },
+            )],
+        };
+        let sharp = c.render(&disc, &NoiseSettings::none(), &mut rng).unwrap();
+        let blurred = c
+            .render(
+                &disc,
+                &NoiseSettings {
+                    blur_sigma: Some(2.0),
+                    ..NoiseSettings::none()
+                },
+                &mut rng,
+            )
+            .unwrap();
+        let grey = |img: &GrayImage| img.iter().filter(|&&p| p > 40 && p < 210).count();
+        assert!(grey(&blurred) > 2 * grey(&sharp));
+        let sum = |img: &GrayImage| img.iter().map(|&p| p as f64).sum::<f64>();
+        assert!((sum(&blurred) - sum(&sharp)).abs() / sum(&sharp) < 0.01);
+    }
+
+    #[test]
+    fn polarity_follows_grey_levels() {
+        let s = CameraSettings {
+            foreground: 10.0,
+            background: 240.0,
+            ..CameraSettings::default()
+        };
+        let c = s.check([0.0, 47.5]).unwrap();
+        assert_eq!(c.geometry.polarity, Polarity::DarkOnBright);
+        assert_eq!(cam().geometry.polarity, Polarity::BrightOnDark);
+    }
+
+    #[test]
     fn bad_noise_is_rejected() {
         let n = NoiseSettings {
             sigma: -1.0,
