@@ -1,7 +1,78 @@
-//! (to be written)
-use criterion::{criterion_group, criterion_main, Criterion};
+//! Simulated rig: rendering one frame (target ≤ 1 ms median) and driving through the dense mesh
+//! (target ≤ 0.5 s for 400 nodes).
 
-fn placeholder(_c: &mut Criterion) {}
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use evitrack::sim::{Motion, Robot, SimSettings};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::hint::black_box;
 
-criterion_group!(benches, placeholder);
+fn render(c: &mut Criterion) {
+    let s = SimSettings::default();
+    let rig = s.check().expect("default settings are valid");
+    let mut robot = Robot::new(&rig.five_bar, &rig.robot).expect("robot");
+    let mut group = c.benchmark_group("render_frame");
+    for (name, x, y) in [("centre", 0.0, 47.5), ("corner", -9.5, 38.0)] {
+        robot.drive_to(x, y).expect("settles");
+        let scene = robot.scene();
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        group.bench_with_input(
+            BenchmarkId::new("170x120_noise", name),
+            &scene,
+            |b, scene| {
+                b.iter(|| {
+                    black_box(
+                        rig.camera
+                            .render(scene, &rig.noise, &mut rng)
+                            .expect("render"),
+                    )
+                })
+            },
+        );
+    }
+    group.finish();
+}
+
+fn drive_mesh(c: &mut Criterion) {
+    let s = SimSettings::default();
+    let rig = s.check().expect("default settings are valid");
+    let mut group = c.benchmark_group("drive_mesh");
+    group.sample_size(10);
+    for spacing in [2.0, 1.0] {
+        let targets = Motion::Mesh { spacing }
+            .targets(&rig.five_bar)
+            .expect("mesh");
+        group.bench_with_input(
+            BenchmarkId::from_parameter(targets.len()),
+            &targets,
+            |b, targets| {
+                b.iter(|| {
+                    let mut robot =
+                        Robot::new_at(&rig.five_bar, &rig.robot, targets[0].x, targets[0].y)
+                            .expect("robot");
+                    for t in targets {
+                        black_box(robot.drive_to(t.x, t.y).expect("settles"));
+                    }
+                    robot.steps()
+                })
+            },
+        );
+    }
+    group.finish();
+}
+
+fn simulate_mesh(c: &mut Criterion) {
+    let s = SimSettings::default();
+    let mut group = c.benchmark_group("simulate");
+    group.sample_size(10);
+    group.bench_function("mesh_400_frames", |b| {
+        b.iter(|| {
+            evitrack::sim::simulate(&s, &Motion::Mesh { spacing: 1.0 }, 7, &mut |_, _| {})
+                .expect("simulate")
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, render, drive_mesh, simulate_mesh);
 criterion_main!(benches);

@@ -1,1 +1,610 @@
-//! (to be written)
+//! Datasets: grey-level frames with optional ground-truth poses, in memory and on disk.
+//!
+//! This is the seam between the world and the tracker: the simulator writes datasets, and a user
+//! with a real camera can bring one instead. On disk a dataset is a folder holding
+//!
+//! - `manifest.json` — format version, camera geometry, units, seed, scenario and source;
+//! - `poses.csv` — header `file,t,x,y,theta1,theta2`, one row per frame in order: the frame's path
+//!   relative to the folder, its time (s), the end-effector position (mm) and the joint angles
+//!   (rad). The four pose columns may all be left empty when the truth is unknown;
+//! - the frames themselves, `frames/NNNNN.png` by default (8-bit grey; colour PNGs are converted).
+//!
+//! Coordinates: positions are in the robot's own frame (mm), the frame of
+//! [`crate::sim::Geometry`]: `y` points from the base pivots towards the workspace, which is
+//! `x ∈ [−9.5, 9.5]`, `y ∈ [38, 57]` by default. Image pixel `(i, j)` (column, row, rows going
+//! down) has its centre at world `x = cx + (i − (W − 1)/2)·s`, `y = cy − (j − (H − 1)/2)·s`
+//! (see [`CameraGeometry`]).
+
+use std::fs;
+use std::path::{Component, Path, PathBuf};
+
+use image::GrayImage;
+use serde::{Deserialize, Serialize};
+
+/// The on-disk format version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Manifest file name inside a dataset folder.
+pub const MANIFEST_FILE: &str = "manifest.json";
+/// Pose table file name inside a dataset folder.
+pub const POSES_FILE: &str = "poses.csv";
+const HEADER: [&str; 6] = ["file", "t", "x", "y", "theta1", "theta2"];
+
+/// Everything that can go wrong reading or writing a dataset.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DatasetError {
+    /// A file could not be read or written.
+    #[error("{path}: {source} (check the path and permissions)")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// The manifest is missing, malformed or of another format version.
+    #[error("{path}: {message}")]
+    Manifest {
+        /// The manifest file.
+        path: PathBuf,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+    /// A row of `poses.csv` is malformed.
+    #[error("{path} line {line}: {message}")]
+    Row {
+        /// The pose table.
+        path: PathBuf,
+        /// 1-based line number in the file.
+        line: u64,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+    /// A frame listed in `poses.csv` is missing or unreadable.
+    #[error("{path} (listed on line {line} of {POSES_FILE}): {message}")]
+    Frame {
+        /// The frame file.
+        path: PathBuf,
+        /// The line of `poses.csv` listing it.
+        line: u64,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+    /// The in-memory dataset is inconsistent and cannot be written.
+    #[error("invalid dataset: {0}")]
+    Invalid(String),
+}
+
+/// An axis-aligned rectangle in mm (used for the robot's workspace).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rect {
+    /// Smallest x.
+    pub x_min: f64,
+    /// Largest x.
+    pub x_max: f64,
+    /// Smallest y.
+    pub y_min: f64,
+    /// Largest y.
+    pub y_max: f64,
+}
+
+/// Which way round the scene is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Polarity {
+    /// Bright robot on a dark background (the simulator's default).
+    #[default]
+    BrightOnDark,
+    /// Dark robot on a bright background (e.g. a backlit rig).
+    DarkOnBright,
+}
+
+/// A top-down orthographic camera: image size and where it looks.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraGeometry {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Pixel size in mm.
+    pub mm_per_px: f64,
+    /// World point (mm) at the image centre, `[x, y]`.
+    pub centre: [f64; 2],
+    /// Foreground/background polarity.
+    #[serde(default)]
+    pub polarity: Polarity,
+}
+
+impl CameraGeometry {
+    /// Continuous pixel coordinates `(i, j)` of world point `(x, y)`; pixel centres are integers.
+    pub fn world_to_pixel(&self, x: f64, y: f64) -> [f64; 2] {
+        [
+            (x - self.centre[0]) / self.mm_per_px + (self.width as f64 - 1.0) / 2.0,
+            (self.centre[1] - y) / self.mm_per_px + (self.height as f64 - 1.0) / 2.0,
+        ]
+    }
+
+    /// World point (mm) of continuous pixel coordinates `(i, j)`.
+    pub fn pixel_to_world(&self, i: f64, j: f64) -> [f64; 2] {
+        [
+            self.centre[0] + (i - (self.width as f64 - 1.0) / 2.0) * self.mm_per_px,
+            self.centre[1] - (j - (self.height as f64 - 1.0) / 2.0) * self.mm_per_px,
+        ]
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 {
+            return Err(format!(
+                "camera size {}×{} must be non-zero",
+                self.width, self.height
+            ));
+        }
+        if !(self.mm_per_px.is_finite() && self.mm_per_px > 0.0) {
+            return Err(format!(
+                "camera mm_per_px = {} must be positive and finite",
+                self.mm_per_px
+            ));
+        }
+        if !(self.centre[0].is_finite() && self.centre[1].is_finite()) {
+            return Err(format!("camera centre {:?} must be finite", self.centre));
+        }
+        Ok(())
+    }
+}
+
+/// Units of the numbers in `poses.csv`; written for humans, checked on read.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Units {
+    /// Length unit of x, y: always `"mm"`.
+    pub length: String,
+    /// Angle unit of θ1, θ2: always `"rad"`.
+    pub angle: String,
+    /// Time unit of t: always `"s"`.
+    pub time: String,
+}
+
+impl Default for Units {
+    fn default() -> Self {
+        Units {
+            length: "mm".into(),
+            angle: "rad".into(),
+            time: "s".into(),
+        }
+    }
+}
+
+/// What a dataset is: camera, units, provenance.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// On-disk format version; must equal [`FORMAT_VERSION`].
+    pub format_version: u32,
+    /// Camera geometry of every frame.
+    pub camera: CameraGeometry,
+    /// Units of `poses.csv`.
+    #[serde(default)]
+    pub units: Units,
+    /// The robot's workspace (mm), when known.
+    #[serde(default)]
+    pub workspace: Option<Rect>,
+    /// Seed of the noise/motion draws, for simulated datasets.
+    #[serde(default)]
+    pub seed: Option<u64>,
+    /// Scenario or motion name.
+    #[serde(default)]
+    pub scenario: String,
+    /// Free-form provenance (simulator settings, rig description…).
+    #[serde(default)]
+    pub source: String,
+    /// Number of frames, checked against `poses.csv`.
+    pub frame_count: usize,
+}
+
+/// Ground truth of one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Truth {
+    /// End-effector x (mm).
+    pub x: f64,
+    /// End-effector y (mm).
+    pub y: f64,
+    /// Left motor angle (rad).
+    pub theta1: f64,
+    /// Right motor angle (rad).
+    pub theta2: f64,
+}
+
+/// One frame: image, time, and ground truth if known.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Path of the PNG relative to the dataset folder, e.g. `frames/00000.png`.
+    pub file: String,
+    /// Time (s).
+    pub t: f64,
+    /// The grey-level image.
+    pub image: GrayImage,
+    /// Ground-truth pose, when known.
+    pub truth: Option<Truth>,
+}
+
+/// A dataset in memory.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dataset {
+    /// What the dataset is.
+    pub manifest: Manifest,
+    /// The frames, in time order.
+    pub frames: Vec<Frame>,
+}
+
+/// The default relative path of frame `index`.
+pub fn frame_file_name(index: usize) -> String {
+    format!("frames/{index:05}.png")
+}
+
+/// Checks that a frame path is relative and stays inside the dataset folder.
+fn safe_relative(file: &str) -> Result<&Path, String> {
+    let p = Path::new(file);
+    if file.is_empty() {
+        return Err("empty frame path".into());
+    }
+    if p.components().any(|c| !matches!(c, Component::Normal(_))) {
+        return Err(format!(
+            "frame path {file:?} must be relative to the dataset folder, without `..`"
+        ));
+    }
+    Ok(p)
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+    move |source| DatasetError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+impl Dataset {
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether there are no frames.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Ground-truth end-effector positions `[x, y]` of every frame, or `None` if any frame has no
+    /// truth.
+    pub fn truth_positions(&self) -> Option<Vec<[f64; 2]>> {
+        self.frames
+            .iter()
+            .map(|f| f.truth.map(|t| [t.x, t.y]))
+            .collect()
+    }
+
+    /// Ground truth of every frame, or `None` if any frame has no truth.
+    pub fn truths(&self) -> Option<Vec<Truth>> {
+        self.frames.iter().map(|f| f.truth).collect()
+    }
+
+    /// The images, in order.
+    pub fn images(&self) -> impl Iterator<Item = &GrayImage> {
+        self.frames.iter().map(|f| &f.image)
+    }
+
+    /// Checks internal consistency: frame count, image sizes, safe unique paths, finite values.
+    pub fn validate(&self) -> Result<(), DatasetError> {
+        let m = &self.manifest;
+        if m.format_version != FORMAT_VERSION {
+            return Err(DatasetError::Invalid(format!(
+                "format_version {} (this build writes {FORMAT_VERSION})",
+                m.format_version
+            )));
+        }
+        m.camera.check().map_err(DatasetError::Invalid)?;
+        if m.frame_count != self.frames.len() {
+            return Err(DatasetError::Invalid(format!(
+                "manifest says {} frames, dataset holds {}",
+                m.frame_count,
+                self.frames.len()
+            )));
+        }
+        let mut seen = std::collections::HashSet::new();
+        for (k, f) in self.frames.iter().enumerate() {
+            safe_relative(&f.file).map_err(|e| DatasetError::Invalid(format!("frame {k}: {e}")))?;
+            if f.file.contains(',') || f.file.contains('"') || f.file.contains('\n') {
+                return Err(DatasetError::Invalid(format!(
+                    "frame {k}: path {:?} must not contain commas, quotes or newlines",
+                    f.file
+                )));
+            }
+            if !seen.insert(f.file.as_str()) {
+                return Err(DatasetError::Invalid(format!(
+                    "frame {k}: path {:?} used twice",
+                    f.file
+                )));
+            }
+            if f.image.width() != m.camera.width || f.image.height() != m.camera.height {
+                return Err(DatasetError::Invalid(format!(
+                    "frame {k}: image is {}×{}, camera is {}×{}",
+                    f.image.width(),
+                    f.image.height(),
+                    m.camera.width,
+                    m.camera.height
+                )));
+            }
+            if !f.t.is_finite() {
+                return Err(DatasetError::Invalid(format!("frame {k}: time {}", f.t)));
+            }
+            if let Some(t) = f.truth {
+                if ![t.x, t.y, t.theta1, t.theta2].iter().all(|v| v.is_finite()) {
+                    return Err(DatasetError::Invalid(format!(
+                        "frame {k}: non-finite truth {t:?}"
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the dataset into folder `dir` (created if needed; existing files are overwritten).
+    pub fn write(&self, dir: impl AsRef<Path>) -> Result<(), DatasetError> {
+        let dir = dir.as_ref();
+        self.validate()?;
+        fs::create_dir_all(dir).map_err(io(dir))?;
+        let mut table = String::from("file,t,x,y,theta1,theta2\n");
+        for f in &self.frames {
+            let path = dir.join(&f.file);
+            if let Some(parent) = path.parent() {
+                fs::create_dir_all(parent).map_err(io(parent))?;
+            }
+            f.image
+                .save_with_format(&path, image::ImageFormat::Png)
+                .map_err(|e| DatasetError::Io {
+                    path: path.clone(),
+                    source: std::io::Error::other(e),
+                })?;
+            // `{}` on f64 prints the shortest string that parses back to the same value.
+            match f.truth {
+                Some(t) => table.push_str(&format!(
+                    "{},{},{},{},{},{}\n",
+                    f.file, f.t, t.x, t.y, t.theta1, t.theta2
+                )),
+                None => table.push_str(&format!("{},{},,,,\n", f.file, f.t)),
+            }
+        }
+        let poses = dir.join(POSES_FILE);
+        fs::write(&poses, table).map_err(io(&poses))?;
+        let manifest = dir.join(MANIFEST_FILE);
+        let json = serde_json::to_string_pretty(&self.manifest)
+            .map_err(|e| DatasetError::Invalid(format!("manifest does not serialise: {e}")))?;
+        fs::write(&manifest, json + "\n").map_err(io(&manifest))?;
+        Ok(())
+    }
+
+    /// Reads and checks the dataset in folder `dir`: the manifest and its version, every row of
+    /// `poses.csv`, and every frame (present, decodable, of the camera's size).
+    pub fn read(dir: impl AsRef<Path>) -> Result<Dataset, DatasetError> {
+        let dir = dir.as_ref();
+        let manifest = read_manifest(&dir.join(MANIFEST_FILE))?;
+        let poses = dir.join(POSES_FILE);
+        let rows = read_poses(&poses)?;
+        if rows.len() != manifest.frame_count {
+            return Err(DatasetError::Manifest {
+                path: dir.join(MANIFEST_FILE),
+                message: format!(
+                    "frame_count is {} but {POSES_FILE} lists {} frames; fix one of them",
+                    manifest.frame_count,
+                    rows.len()
+                ),
+            });
+        }
+        let mut frames = Vec::with_capacity(rows.len());
+        for row in rows {
+            let path = dir.join(&row.file);
+            let frame_err = |message: String| DatasetError::Frame {
+                path: path.clone(),
+                line: row.line,
+                message,
+            };
+            if !path.is_file() {
+                return Err(frame_err(
+                    "frame file is missing; restore it or remove its row".into(),
+                ));
+            }
+            let img = image::open(&path)
+                .map_err(|e| frame_err(format!("cannot decode the image: {e}")))?;
+            let image = match img {
+                image::DynamicImage::ImageLuma8(g) => g,
+                other => other.to_luma8(),
+            };
+            let c = &manifest.camera;
+            if image.width() != c.width || image.height() != c.height {
+                return Err(frame_err(format!(
+                    "image is {}×{} but the manifest camera is {}×{}",
+                    image.width(),
+                    image.height(),
+                    c.width,
+                    c.height
+                )));
+            }
+            frames.push(Frame {
+                file: row.file,
+                t: row.t,
+                image,
+                truth: row.truth,
+            });
+        }
+        Ok(Dataset { manifest, frames })
+    }
+}
+
+fn read_manifest(path: &Path) -> Result<Manifest, DatasetError> {
+    let err = |message: String| DatasetError::Manifest {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = fs::read_to_string(path).map_err(io(path))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| err(format!("not valid JSON: {e}")))?;
+    match value.get("format_version").and_then(|v| v.as_u64()) {
+        Some(v) if v == FORMAT_VERSION as u64 => {}
+        Some(v) => {
+            return Err(err(format!(
+                "format_version {v} is not supported (this build reads version \
+                 {FORMAT_VERSION}); convert the dataset or use a matching evitrack"
+            )))
+        }
+        None => {
+            return Err(err(format!(
+                "missing or non-integer format_version (expected {FORMAT_VERSION})"
+            )))
+        }
+    }
+    let m: Manifest =
+        serde_json::from_value(value).map_err(|e| err(format!("malformed manifest: {e}")))?;
+    m.camera.check().map_err(err)?;
+    if m.units != Units::default() {
+        return Err(err(format!(
+            "units {:?} are not supported: poses must be in mm, rad and s",
+            m.units
+        )));
+    }
+    Ok(m)
+}
+
+struct Row {
+    line: u64,
+    file: String,
+    t: f64,
+    truth: Option<Truth>,
+}
+
+fn read_poses(path: &Path) -> Result<Vec<Row>, DatasetError> {
+    let file = fs::File::open(path).map_err(io(path))?;
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .from_reader(file);
+    let row_err = |line: u64, message: String| DatasetError::Row {
+        path: path.to_path_buf(),
+        line,
+        message,
+    };
+    let header = rdr
+        .headers()
+        .map_err(|e| row_err(1, format!("unreadable header: {e}")))?
+        .clone();
+    if header.iter().collect::<Vec<_>>() != HEADER {
+        return Err(row_err(
+            1,
+            format!(
+                "header must be `{}`, found `{}`",
+                HEADER.join(","),
+                header.iter().collect::<Vec<_>>().join(",")
+            ),
+        ));
+    }
+    let mut rows = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut last_t = f64::NEG_INFINITY;
+    for rec in rdr.records() {
+        let rec = rec.map_err(|e| {
+            let line = e.position().map(|p| p.line()).unwrap_or(0);
+            row_err(line, format!("unreadable row: {e}"))
+        })?;
+        let line = rec.position().map(|p| p.line()).unwrap_or(0);
+        if rec.len() != HEADER.len() {
+            return Err(row_err(
+                line,
+                format!(
+                    "expected {} fields ({}), found {}",
+                    HEADER.len(),
+                    HEADER.join(","),
+                    rec.len()
+                ),
+            ));
+        }
+        let file = rec[0].to_string();
+        safe_relative(&file).map_err(|e| row_err(line, e))?;
+        if !seen.insert(file.clone()) {
+            return Err(row_err(line, format!("frame {file:?} listed twice")));
+        }
+        let num = |k: usize| -> Result<f64, DatasetError> {
+            let v: f64 = rec[k].parse().map_err(|_| {
+                row_err(
+                    line,
+                    format!("{} = {:?} is not a number", HEADER[k], &rec[k]),
+                )
+            })?;
+            if !v.is_finite() {
+                return Err(row_err(line, format!("{} = {v} must be finite", HEADER[k])));
+            }
+            Ok(v)
+        };
+        let t = num(1)?;
+        if t < last_t {
+            return Err(row_err(
+                line,
+                format!("time {t} s goes backwards (previous row {last_t} s); sort the rows"),
+            ));
+        }
+        last_t = t;
+        let empty = (2..6).filter(|&k| rec[k].is_empty()).count();
+        let truth = match empty {
+            4 => None,
+            0 => Some(Truth {
+                x: num(2)?,
+                y: num(3)?,
+                theta1: num(4)?,
+                theta2: num(5)?,
+            }),
+            _ => {
+                return Err(row_err(
+                    line,
+                    "x, y, theta1, theta2 must be all filled or all empty".into(),
+                ))
+            }
+        };
+        rows.push(Row {
+            line,
+            file,
+            t,
+            truth,
+        });
+    }
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pixel_world_round_trip() {
+        let c = CameraGeometry {
+            width: 170,
+            height: 120,
+            mm_per_px: 0.2,
+            centre: [0.0, 47.5],
+            polarity: Polarity::BrightOnDark,
+        };
+        let p = c.world_to_pixel(0.0, 47.5);
+        assert_eq!(p, [84.5, 59.5]);
+        let q = c.pixel_to_world(10.0, 3.0);
+        let r = c.world_to_pixel(q[0], q[1]);
+        assert!((r[0] - 10.0).abs() < 1e-12 && (r[1] - 3.0).abs() < 1e-12);
+        // rows go down: larger y is a smaller row index
+        assert!(c.world_to_pixel(0.0, 50.0)[1] < p[1]);
+    }
+
+    #[test]
+    fn unsafe_paths_are_rejected() {
+        assert!(safe_relative("../x.png").is_err());
+        assert!(safe_relative("/abs.png").is_err());
+        assert!(safe_relative("").is_err());
+        assert!(safe_relative("frames/00001.png").is_ok());
+    }
+}
