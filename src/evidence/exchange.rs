@@ -1,0 +1,296 @@
+//! The JSON exchange format of `evitrack combine FILE.json`, as library code.
+//!
+//! Input: `{"frame": n, "rule": "dempster" | "conjunctive", "mass_functions": [{"focal": [[i, …], …],
+//! "mass": [m, …]}, …]}` (unknown fields are errors). Output: `{"focal": […], "mass": […],
+//! "conflict_mass": κ, "conflict_level": K, "plausibility": [one value per element]}`, focal sets
+//! sorted by decreasing mass (ties: lexicographic element lists). On total conflict
+//! `conflict_level` is the string `"inf"`, `focal` and `mass` are empty and every plausibility is 0.
+//! Under the conjunctive rule the output is the unnormalised function: masses and plausibilities
+//! are not divided by 1 − κ, and the mass on ∅ is reported as `conflict_mass` only.
+
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+use super::combine::{conjunctive_all, dempster_all, Rule};
+use super::mass::{MassFunction, MASS_TOLERANCE};
+use super::subset::Subset;
+use super::EvidenceError;
+
+/// Input of `evitrack combine`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CombineInput {
+    /// Number of elements of the frame.
+    pub frame: usize,
+    /// Combination rule.
+    pub rule: Rule,
+    /// The mass functions to combine.
+    pub mass_functions: Vec<RawMassFunction>,
+}
+
+/// One mass function of the input, unvalidated.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMassFunction {
+    /// Focal sets as lists of element indices in 0..frame.
+    pub focal: Vec<Vec<usize>>,
+    /// One mass per focal set.
+    pub mass: Vec<f64>,
+}
+
+/// Level of conflict as exchanged: a number, or the string `"inf"` on total conflict.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ConflictLevel {
+    /// A finite level K ≥ 0.
+    Finite(f64),
+    /// Total conflict: K = +∞.
+    Infinite,
+}
+
+impl ConflictLevel {
+    /// As an `f64` (`f64::INFINITY` for [`ConflictLevel::Infinite`]).
+    pub fn value(self) -> f64 {
+        match self {
+            ConflictLevel::Finite(k) => k,
+            ConflictLevel::Infinite => f64::INFINITY,
+        }
+    }
+
+    fn from_value(k: f64) -> Self {
+        if k.is_finite() {
+            ConflictLevel::Finite(k)
+        } else {
+            ConflictLevel::Infinite
+        }
+    }
+}
+
+impl Serialize for ConflictLevel {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            ConflictLevel::Finite(k) => s.serialize_f64(*k),
+            ConflictLevel::Infinite => s.serialize_str("inf"),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for ConflictLevel {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(Deserialize)]
+        #[serde(untagged)]
+        enum Raw {
+            Number(f64),
+            Text(String),
+        }
+        match Raw::deserialize(d)? {
+            Raw::Number(k) => Ok(ConflictLevel::Finite(k)),
+            Raw::Text(t) if t == "inf" => Ok(ConflictLevel::Infinite),
+            Raw::Text(t) => Err(serde::de::Error::custom(format!(
+                "conflict_level must be a number or \"inf\", not {t:?}"
+            ))),
+        }
+    }
+}
+
+/// Output of `evitrack combine`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CombineReport {
+    /// Focal sets of the result (element lists, ascending).
+    pub focal: Vec<Vec<usize>>,
+    /// Their masses.
+    pub mass: Vec<f64>,
+    /// Conflict mass κ.
+    pub conflict_mass: f64,
+    /// Level of conflict K.
+    pub conflict_level: ConflictLevel,
+    /// Plausibility of every singleton.
+    pub plausibility: Vec<f64>,
+}
+
+impl CombineReport {
+    /// Whether the functions were in total conflict (the CLI warns and exits with status 0).
+    pub fn is_total_conflict(&self) -> bool {
+        self.conflict_level == ConflictLevel::Infinite
+    }
+}
+
+fn bad(mass_function: usize, focal_set: Option<usize>, reason: String) -> EvidenceError {
+    EvidenceError::BadInput {
+        mass_function,
+        focal_set,
+        reason,
+    }
+}
+
+/// Validate one raw function, naming the function and focal set at fault.
+fn validate(
+    frame: usize,
+    index: usize,
+    raw: &RawMassFunction,
+) -> Result<MassFunction, EvidenceError> {
+    if raw.focal.len() != raw.mass.len() {
+        return Err(bad(
+            index,
+            None,
+            format!(
+                "has {} focal sets but {} masses: give exactly one mass per focal set",
+                raw.focal.len(),
+                raw.mass.len()
+            ),
+        ));
+    }
+    if raw.focal.is_empty() {
+        return Err(bad(
+            index,
+            None,
+            "has no focal set: give at least one".into(),
+        ));
+    }
+    let mut pairs = Vec::with_capacity(raw.focal.len());
+    let mut sum = 0.0;
+    for (j, (set, &m)) in raw.focal.iter().zip(&raw.mass).enumerate() {
+        if set.is_empty() {
+            return Err(bad(
+                index,
+                Some(j),
+                "is empty: a focal set needs at least one element".into(),
+            ));
+        }
+        if let Some(&e) = set.iter().find(|&&e| e >= frame) {
+            return Err(bad(
+                index,
+                Some(j),
+                format!("element {e} is out of range: elements must be in 0..{frame}"),
+            ));
+        }
+        if !m.is_finite() || m < 0.0 {
+            return Err(bad(
+                index,
+                Some(j),
+                format!("mass {m} is not a finite non-negative number"),
+            ));
+        }
+        sum += m;
+        pairs.push((Subset::from_indices(frame, set.iter().copied())?, m));
+    }
+    if (sum - 1.0).abs() > MASS_TOLERANCE {
+        return Err(bad(
+            index,
+            None,
+            format!("masses sum to {sum}, not 1 (tolerance {MASS_TOLERANCE}): rescale them"),
+        ));
+    }
+    MassFunction::new(frame, pairs).map_err(|e| bad(index, None, e.to_string()))
+}
+
+/// Validate and combine a parsed input.
+///
+/// # Errors
+/// [`EvidenceError::EmptyFrame`], [`EvidenceError::FrameTooLarge`],
+/// [`EvidenceError::NothingToCombine`], [`EvidenceError::BadInput`].
+pub fn combine_input(input: &CombineInput) -> Result<CombineReport, EvidenceError> {
+    if input.frame == 0 {
+        return Err(EvidenceError::EmptyFrame);
+    }
+    super::subset::check_frame(input.frame)?;
+    if input.mass_functions.is_empty() {
+        return Err(EvidenceError::NothingToCombine);
+    }
+    let fs = input
+        .mass_functions
+        .iter()
+        .enumerate()
+        .map(|(i, raw)| validate(input.frame, i, raw))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (result, conflict_mass, level) = match input.rule {
+        Rule::Dempster => {
+            let c = dempster_all(&fs)?;
+            (c.mass, c.conflict_mass, c.conflict_level)
+        }
+        Rule::Conjunctive => {
+            let m = conjunctive_all(&fs)?;
+            let kappa = m.empty_mass();
+            let kept: f64 = m
+                .focal()
+                .filter(|(s, _)| !s.is_empty())
+                .map(|(_, x)| x)
+                .sum();
+            if kept > 0.0 {
+                (Some(m), kappa, (-kept.ln()).max(0.0))
+            } else {
+                (None, 1.0, f64::INFINITY)
+            }
+        }
+    };
+    let Some(m) = result else {
+        return Ok(CombineReport {
+            focal: Vec::new(),
+            mass: Vec::new(),
+            conflict_mass,
+            conflict_level: ConflictLevel::Infinite,
+            plausibility: vec![0.0; input.frame],
+        });
+    };
+    let mut rows: Vec<(Vec<usize>, f64)> = m
+        .focal()
+        .filter(|(s, _)| !s.is_empty())
+        .map(|(s, x)| (s.to_vec(), x))
+        .collect();
+    rows.sort_by(|a, b| b.1.total_cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    let (focal, mass) = rows.into_iter().unzip();
+    Ok(CombineReport {
+        focal,
+        mass,
+        conflict_mass,
+        conflict_level: ConflictLevel::from_value(level),
+        plausibility: m.contour(),
+    })
+}
+
+/// Parse, validate and combine the text of a `combine` input file.
+///
+/// # Errors
+/// [`EvidenceError::Json`] (with line and column) for malformed JSON or unknown fields, and the
+/// errors of [`combine_input`].
+pub fn combine_json(text: &str) -> Result<CombineReport, EvidenceError> {
+    let input: CombineInput =
+        serde_json::from_str(text).map_err(|e| EvidenceError::Json(e.to_string()))?;
+    combine_input(&input)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_by_hand() {
+        let text = r#"{"frame": 3, "rule": "dempster", "mass_functions": [
+            {"focal": [[0], [0, 1]], "mass": [0.6, 0.4]},
+            {"focal": [[1], [0, 1, 2]], "mass": [0.5, 0.5]}]}"#;
+        let r = combine_json(text).unwrap();
+        assert!((r.conflict_mass - 0.3).abs() < 1e-15);
+        assert_eq!(r.focal, vec![vec![0], vec![0, 1], vec![1]]);
+        assert!((r.mass[0] - 0.3 / 0.7).abs() < 1e-15);
+        assert!((r.plausibility[0] - 0.5 / 0.7).abs() < 1e-15);
+        assert!((r.plausibility[2]).abs() < 1e-15);
+        assert!(!r.is_total_conflict());
+        let json = serde_json::to_value(&r).unwrap();
+        assert!(json["conflict_level"].is_number());
+    }
+
+    #[test]
+    fn total_conflict_serialises_inf() {
+        let text = r#"{"frame": 2, "rule": "dempster", "mass_functions": [
+            {"focal": [[0]], "mass": [1.0]}, {"focal": [[1]], "mass": [1.0]}]}"#;
+        let r = combine_json(text).unwrap();
+        assert!(r.is_total_conflict());
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(json["conflict_level"], "inf");
+        assert_eq!(json["focal"].as_array().map(Vec::len), Some(0));
+        let back: CombineReport = serde_json::from_value(json).unwrap();
+        assert_eq!(back, r);
+        let conj = combine_json(&text.replace("dempster", "conjunctive")).unwrap();
+        assert!(conj.is_total_conflict());
+        assert_eq!(conj.conflict_mass, 1.0);
+    }
+}

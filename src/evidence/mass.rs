@@ -1,0 +1,345 @@
+//! Mass functions (basic probability assignments) with sparse focal sets.
+
+use std::collections::HashMap;
+
+use super::subset::{check_frame, Subset};
+use super::EvidenceError;
+
+/// Largest accepted absolute deviation of the sum of the masses from 1 at construction.
+///
+/// Accepted masses are rescaled by their sum, so the stored masses sum to 1 up to rounding.
+pub const MASS_TOLERANCE: f64 = 1e-9;
+
+/// A mass function on a frame of `n` elements: distinct focal sets with positive masses.
+///
+/// Normalised functions (built with [`MassFunction::new`]) have no mass on ∅; the unconstrained
+/// [`MassFunction::unnormalised`] form may, and then [`MassFunction::empty_mass`] is the conflict
+/// it carries (Smets' open-world form, as produced by the conjunctive rule).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MassFunction {
+    n: usize,
+    focal: Vec<Subset>,
+    mass: Vec<f64>,
+}
+
+impl MassFunction {
+    /// A normalised mass function from (focal set, mass) pairs.
+    ///
+    /// Masses must be finite and non-negative and sum to 1 within [`MASS_TOLERANCE`]; they are then
+    /// rescaled by their sum. Zero masses are dropped, repeated focal sets are merged (masses
+    /// added), and focal sets keep their first-seen order.
+    ///
+    /// # Errors
+    /// [`EvidenceError::EmptyFrame`], [`EvidenceError::FrameMismatch`],
+    /// [`EvidenceError::InvalidMass`], [`EvidenceError::EmptyFocalSet`], [`EvidenceError::MassSum`].
+    pub fn new(n: usize, focal: Vec<(Subset, f64)>) -> Result<Self, EvidenceError> {
+        Self::build(n, focal, false)
+    }
+
+    /// Like [`MassFunction::new`] but mass on the empty set is allowed.
+    ///
+    /// # Errors
+    /// As [`MassFunction::new`], except that empty focal sets are accepted.
+    pub fn unnormalised(n: usize, focal: Vec<(Subset, f64)>) -> Result<Self, EvidenceError> {
+        Self::build(n, focal, true)
+    }
+
+    fn build(
+        n: usize,
+        focal: Vec<(Subset, f64)>,
+        allow_empty: bool,
+    ) -> Result<Self, EvidenceError> {
+        if n == 0 {
+            return Err(EvidenceError::EmptyFrame);
+        }
+        check_frame(n)?;
+        let mut sum = 0.0;
+        for (i, (s, m)) in focal.iter().enumerate() {
+            if s.frame_size() != n {
+                return Err(EvidenceError::FrameMismatch {
+                    expected: n,
+                    found: s.frame_size(),
+                });
+            }
+            if !m.is_finite() || *m < 0.0 {
+                return Err(EvidenceError::InvalidMass { focal: i, mass: *m });
+            }
+            if *m > 0.0 && !allow_empty && s.is_empty() {
+                return Err(EvidenceError::EmptyFocalSet { focal: i });
+            }
+            sum += m;
+        }
+        if (sum - 1.0).abs() > MASS_TOLERANCE {
+            return Err(EvidenceError::MassSum {
+                sum,
+                tolerance: MASS_TOLERANCE,
+            });
+        }
+        let mut index: HashMap<Subset, usize> = HashMap::with_capacity(focal.len());
+        let mut sets = Vec::with_capacity(focal.len());
+        let mut masses: Vec<f64> = Vec::with_capacity(focal.len());
+        for (s, m) in focal {
+            if m == 0.0 {
+                continue;
+            }
+            match index.get(&s) {
+                Some(&k) => masses[k] += m / sum,
+                None => {
+                    index.insert(s.clone(), sets.len());
+                    sets.push(s);
+                    masses.push(m / sum);
+                }
+            }
+        }
+        Ok(MassFunction {
+            n,
+            focal: sets,
+            mass: masses,
+        })
+    }
+
+    /// Trusted constructor for results of the algebra: distinct sets, positive masses.
+    pub(crate) fn from_parts(n: usize, focal: Vec<Subset>, mass: Vec<f64>) -> Self {
+        MassFunction { n, focal, mass }
+    }
+
+    /// The vacuous mass function m(Θ) = 1 (total ignorance).
+    ///
+    /// # Errors
+    /// [`EvidenceError::EmptyFrame`] when `n == 0`, [`EvidenceError::FrameTooLarge`] beyond
+    /// [`crate::evidence::MAX_FRAME`].
+    pub fn vacuous(n: usize) -> Result<Self, EvidenceError> {
+        if n == 0 {
+            return Err(EvidenceError::EmptyFrame);
+        }
+        check_frame(n)?;
+        Ok(MassFunction {
+            n,
+            focal: vec![Subset::full(n)],
+            mass: vec![1.0],
+        })
+    }
+
+    /// A Bayesian mass function from probabilities of singletons (must sum to 1 within tolerance).
+    ///
+    /// # Errors
+    /// As [`MassFunction::new`].
+    pub fn bayesian(p: &[f64]) -> Result<Self, EvidenceError> {
+        let n = p.len();
+        Self::new(
+            n,
+            p.iter()
+                .enumerate()
+                .map(|(i, &m)| (Subset::singleton(n, i), m))
+                .collect(),
+        )
+    }
+
+    /// Frame size.
+    pub fn frame_size(&self) -> usize {
+        self.n
+    }
+
+    /// Number of focal sets (including ∅ if it carries mass).
+    pub fn len(&self) -> usize {
+        self.focal.len()
+    }
+
+    /// Whether there are no focal sets (never true for a constructed function).
+    pub fn is_empty(&self) -> bool {
+        self.focal.is_empty()
+    }
+
+    /// (focal set, mass) pairs.
+    pub fn focal(&self) -> impl ExactSizeIterator<Item = (&Subset, f64)> + '_ {
+        self.focal.iter().zip(self.mass.iter().copied())
+    }
+
+    /// The focal sets.
+    pub fn focal_sets(&self) -> &[Subset] {
+        &self.focal
+    }
+
+    /// The masses, in the order of [`MassFunction::focal_sets`].
+    pub fn masses(&self) -> &[f64] {
+        &self.mass
+    }
+
+    /// Mass on the empty set (0 for normalised functions).
+    pub fn empty_mass(&self) -> f64 {
+        self.focal()
+            .filter(|(s, _)| s.is_empty())
+            .map(|(_, m)| m)
+            .sum()
+    }
+
+    /// Whether the function is vacuous (all mass on the whole frame).
+    pub fn is_vacuous(&self) -> bool {
+        self.focal.len() == 1 && self.focal[0].count() == self.n
+    }
+
+    /// Bel(A) = Σ m(B) over non-empty B ⊆ A (mass on ∅ is not belief).
+    ///
+    /// `a` is read as a set of indices; elements outside this frame are ignored.
+    pub fn belief(&self, a: &Subset) -> f64 {
+        self.focal()
+            .filter(|(b, _)| !b.is_empty() && b.is_subset_of(a))
+            .map(|(_, m)| m)
+            .sum()
+    }
+
+    /// Pl(A) = Σ m(B) over B with B ∩ A ≠ ∅.
+    pub fn plausibility(&self, a: &Subset) -> f64 {
+        self.focal()
+            .filter(|(b, _)| b.intersects(a))
+            .map(|(_, m)| m)
+            .sum()
+    }
+
+    /// Q(A) = Σ m(B) over B ⊇ A.
+    pub fn commonality(&self, a: &Subset) -> f64 {
+        self.focal()
+            .filter(|(b, _)| a.is_subset_of(b))
+            .map(|(_, m)| m)
+            .sum()
+    }
+
+    /// The contour function: plausibility of every singleton, in O(n + Σ|A|).
+    pub fn contour(&self) -> Vec<f64> {
+        let mut pl = vec![0.0; self.n];
+        for (s, m) in self.focal() {
+            for i in s.iter() {
+                pl[i] += m;
+            }
+        }
+        pl
+    }
+
+    /// Shafer's discounting with reliability `alpha`: every mass is multiplied by `alpha` and the
+    /// remaining 1 − `alpha` goes to the whole frame (α = 1 keeps the function, α = 0 makes it vacuous).
+    ///
+    /// # Errors
+    /// [`EvidenceError::InvalidReliability`] when `alpha` is NaN or outside [0, 1].
+    pub fn discount(&self, alpha: f64) -> Result<MassFunction, EvidenceError> {
+        if !(0.0..=1.0).contains(&alpha) {
+            return Err(EvidenceError::InvalidReliability { alpha });
+        }
+        let full = Subset::full(self.n);
+        let mut focal = Vec::with_capacity(self.len() + 1);
+        let mut mass = Vec::with_capacity(self.len() + 1);
+        let mut on_full = 1.0 - alpha;
+        for (s, m) in self.focal() {
+            if *s == full {
+                on_full += alpha * m;
+            } else if alpha * m > 0.0 {
+                focal.push(s.clone());
+                mass.push(alpha * m);
+            }
+        }
+        if on_full > 0.0 {
+            focal.push(full);
+            mass.push(on_full);
+        }
+        Ok(MassFunction {
+            n: self.n,
+            focal,
+            mass,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn s(n: usize, v: &[usize]) -> Subset {
+        Subset::from_indices(n, v.iter().copied()).unwrap()
+    }
+
+    #[test]
+    fn belief_plausibility_commonality_by_hand() {
+        // m({0}) = 0.2, m({0,1}) = 0.3, m({1,2,3}) = 0.5 on 4 elements.
+        let m = MassFunction::new(
+            4,
+            vec![
+                (s(4, &[0]), 0.2),
+                (s(4, &[0, 1]), 0.3),
+                (s(4, &[1, 2, 3]), 0.5),
+            ],
+        )
+        .unwrap();
+        let a = s(4, &[0, 1]);
+        assert!((m.belief(&a) - 0.5).abs() < 1e-15);
+        assert!((m.plausibility(&a) - 1.0).abs() < 1e-15);
+        assert!((m.commonality(&s(4, &[1])) - 0.8).abs() < 1e-15);
+        assert!((m.commonality(&a) - 0.3).abs() < 1e-15);
+        let c = m.contour();
+        let want = [0.5, 0.8, 0.5, 0.5];
+        for (x, y) in c.iter().zip(want) {
+            assert!((x - y).abs() < 1e-15);
+        }
+        assert_eq!(m.belief(&Subset::full(4)), 1.0);
+    }
+
+    #[test]
+    fn validation_rejects_bad_masses() {
+        let n = 3;
+        assert_eq!(MassFunction::new(0, vec![]), Err(EvidenceError::EmptyFrame));
+        assert!(matches!(
+            MassFunction::new(n, vec![(s(n, &[0]), f64::NAN)]),
+            Err(EvidenceError::InvalidMass { focal: 0, .. })
+        ));
+        assert!(matches!(
+            MassFunction::new(n, vec![(s(n, &[0]), 1.5), (s(n, &[1]), -0.5)]),
+            Err(EvidenceError::InvalidMass { focal: 1, .. })
+        ));
+        assert!(matches!(
+            MassFunction::new(n, vec![(s(n, &[0]), 0.5)]),
+            Err(EvidenceError::MassSum { .. })
+        ));
+        assert_eq!(
+            MassFunction::new(n, vec![(s(n, &[0]), 0.5), (Subset::empty(n), 0.5)]),
+            Err(EvidenceError::EmptyFocalSet { focal: 1 })
+        );
+        let u = MassFunction::unnormalised(n, vec![(s(n, &[0]), 0.5), (Subset::empty(n), 0.5)])
+            .unwrap();
+        assert_eq!(u.empty_mass(), 0.5);
+        assert!(matches!(
+            MassFunction::new(n, vec![(s(4, &[0]), 1.0)]),
+            Err(EvidenceError::FrameMismatch {
+                expected: 3,
+                found: 4
+            })
+        ));
+    }
+
+    #[test]
+    fn duplicates_merge_and_tolerance_rescales() {
+        let n = 3;
+        let m = MassFunction::new(
+            n,
+            vec![
+                (s(n, &[0]), 0.25),
+                (s(n, &[1]), 0.5),
+                (s(n, &[0]), 0.25 + 5e-10),
+            ],
+        )
+        .unwrap();
+        assert_eq!(m.len(), 2);
+        assert!((m.masses().iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        assert!((m.masses()[0] - 0.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn discounting_moves_mass_to_frame() {
+        let n = 3;
+        let m = MassFunction::new(n, vec![(s(n, &[0]), 0.6), (Subset::full(n), 0.4)]).unwrap();
+        let d = m.discount(0.5).unwrap();
+        assert!((d.plausibility(&s(n, &[1])) - 0.7).abs() < 1e-15);
+        assert!((d.belief(&s(n, &[0])) - 0.3).abs() < 1e-15);
+        assert!(d.discount(0.0).unwrap().is_vacuous());
+        assert_eq!(m.discount(1.0).unwrap().contour(), m.contour());
+        assert!(m.discount(f64::NAN).is_err());
+        assert!(m.discount(1.1).is_err());
+    }
+}
