@@ -1,1 +1,1260 @@
-//! (to be written)
+//! Gaussian hidden Markov models for scalar features (paper §3.2–3.4).
+//!
+//! This room quantises one scalar feature: [`GaussianHmm::fit`] learns an HMM with Gaussian
+//! emissions by Baum–Welch (EM) from a sequence of observations, and the fitted model gives per
+//! state the likelihood Γⱼ(y) of an observation ([`GaussianHmm::likelihoods`]) and the state
+//! assignment of each training sample ([`GaussianHmm::assign`]), by largest Γⱼ (the paper's rule,
+//! §3.3) or by Viterbi. The states of a fitted model are sorted by increasing mean.
+//!
+//! Numerics: the forward–backward pass works in scaled space; emission densities are normalised
+//! per observation by their largest value (kept as a log offset), so no observation, however far
+//! from every state, makes the pass underflow.
+//!
+//! Degenerate data has a defined outcome: an empty sequence, zero states or a non-finite
+//! observation is an error (naming the index); data with fewer distinct values than requested
+//! states (a constant feature, two distinct values, fewer samples than states) gives a model with
+//! as many states as distinct values, see [`GaussianHmm::fit`].
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// Tolerance on the sum of a probability vector (initial probabilities, transition rows) accepted
+/// by [`GaussianHmm::validate`].
+pub const STOCHASTIC_TOLERANCE: f64 = 1e-6;
+
+/// Smallest scaled emission used by the forward–backward pass: an emission `1e-150` times
+/// smaller than the best state's counts as `1e-150` (a negligible change), which keeps every
+/// forward step from underflowing.
+const EMISSION_FLOOR: f64 = 1e-150;
+
+/// ln [`EMISSION_FLOOR`].
+const LN_EMISSION_FLOOR: f64 = -345.387_763_949_107;
+
+/// Squared standardised distances are capped here so that any finite observation gives a finite
+/// log density.
+const MAX_SQUARED_DISTANCE: f64 = 1e300;
+
+const LN_2PI: f64 = 1.837_877_066_409_345_5;
+
+/// Errors of HMM fitting, evaluation and validation.
+#[derive(Debug, Error, Clone, PartialEq)]
+#[non_exhaustive]
+pub enum HmmError {
+    /// No observations were given.
+    #[error("no observations to fit: give at least one sample")]
+    Empty,
+    /// Zero states were requested.
+    #[error("an HMM needs at least one state: ask for n_states >= 1")]
+    NoStates,
+    /// An observation is NaN or infinite.
+    #[error("observation {index} is not finite ({value}); drop or repair it before fitting")]
+    NonFinite {
+        /// Position of the offending observation.
+        index: usize,
+        /// Its value.
+        value: f64,
+    },
+    /// The observations are so large that their variance overflows.
+    #[error("the observations' variance is not finite (values too large); rescale the feature")]
+    DataRange,
+    /// A setting is out of range.
+    #[error("invalid HMM setting `{field}`: {reason}")]
+    Settings {
+        /// The offending field.
+        field: &'static str,
+        /// What is wrong and what is allowed.
+        reason: String,
+    },
+    /// Every restart of EM failed numerically.
+    #[error("EM failed numerically in all {restarts} restarts; check the data for extreme values")]
+    Numerical {
+        /// How many restarts were tried.
+        restarts: usize,
+    },
+    /// Model parameters are not a valid Gaussian HMM (e.g. a deserialised model).
+    #[error("invalid HMM parameters: {0}")]
+    InvalidModel(String),
+    /// An output buffer has the wrong length.
+    #[error("output buffer has length {got} but the model has {expected} states")]
+    OutputLength {
+        /// Number of states of the model.
+        expected: usize,
+        /// Length of the buffer given.
+        got: usize,
+    },
+}
+
+/// How each training sample is attributed to a state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AssignmentRule {
+    /// The state with the largest emission likelihood Γⱼ(y) (paper §3.3); ties go to the lower
+    /// state index.
+    #[default]
+    MaxLikelihood,
+    /// The most likely state sequence (Viterbi), which also uses the transition matrix.
+    Viterbi,
+}
+
+/// Settings of EM fitting.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HmmSettings {
+    /// Number of EM runs from different seeded k-means++ initialisations; the run with the best
+    /// final log-likelihood is kept. At least 1.
+    pub restarts: usize,
+    /// Cap on EM iterations per run. At least 1.
+    pub max_iterations: usize,
+    /// EM stops when one iteration raises the log-likelihood by less than `tolerance` per
+    /// observation. Finite, at least 0.
+    pub tolerance: f64,
+    /// Lower bound on every state variance, relative to the variance of the training data (when
+    /// the data is constant: relative to max(mean², 1)). Finite, in (0, 1].
+    pub variance_floor: f64,
+    /// How training samples are attributed to states.
+    pub assignment: AssignmentRule,
+}
+
+impl Default for HmmSettings {
+    fn default() -> Self {
+        Self {
+            restarts: 3,
+            max_iterations: 200,
+            tolerance: 1e-4,
+            variance_floor: 1e-3,
+            assignment: AssignmentRule::MaxLikelihood,
+        }
+    }
+}
+
+impl HmmSettings {
+    /// Checks that every setting is in range.
+    pub fn check(&self) -> Result<(), HmmError> {
+        if self.restarts == 0 {
+            return Err(HmmError::Settings {
+                field: "restarts",
+                reason: "must be at least 1".into(),
+            });
+        }
+        if self.max_iterations == 0 {
+            return Err(HmmError::Settings {
+                field: "max_iterations",
+                reason: "must be at least 1".into(),
+            });
+        }
+        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+            return Err(HmmError::Settings {
+                field: "tolerance",
+                reason: format!("must be finite and >= 0, got {}", self.tolerance),
+            });
+        }
+        if !(self.variance_floor.is_finite()
+            && self.variance_floor > 0.0
+            && self.variance_floor <= 1.0)
+        {
+            return Err(HmmError::Settings {
+                field: "variance_floor",
+                reason: format!("must be in (0, 1], got {}", self.variance_floor),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The result of [`GaussianHmm::fit`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct HmmFit {
+    /// The fitted model (states sorted by increasing mean).
+    pub hmm: GaussianHmm,
+    /// Log-likelihood of the training data under `hmm`.
+    pub log_likelihood: f64,
+    /// Log-likelihood before each EM update and after the last one, of the kept restart; never
+    /// decreases (up to rounding).
+    pub trace: Vec<f64>,
+    /// EM iterations (parameter updates) of the kept restart.
+    pub iterations: usize,
+    /// Whether the kept restart met the tolerance before the iteration cap.
+    pub converged: bool,
+}
+
+/// A hidden Markov model with scalar Gaussian emissions.
+///
+/// Deserialisation validates the parameters (see [`GaussianHmm::validate`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "HmmParameters")]
+pub struct GaussianHmm {
+    initial: Vec<f64>,
+    transitions: Vec<Vec<f64>>,
+    means: Vec<f64>,
+    variances: Vec<f64>,
+}
+
+/// Unvalidated parameters as they appear in a file.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HmmParameters {
+    initial: Vec<f64>,
+    transitions: Vec<Vec<f64>>,
+    means: Vec<f64>,
+    variances: Vec<f64>,
+}
+
+impl TryFrom<HmmParameters> for GaussianHmm {
+    type Error = HmmError;
+    fn try_from(p: HmmParameters) -> Result<Self, HmmError> {
+        GaussianHmm::new(p.initial, p.transitions, p.means, p.variances)
+    }
+}
+
+impl GaussianHmm {
+    /// Builds a model from its parameters, validated as by [`GaussianHmm::validate`].
+    pub fn new(
+        initial: Vec<f64>,
+        transitions: Vec<Vec<f64>>,
+        means: Vec<f64>,
+        variances: Vec<f64>,
+    ) -> Result<Self, HmmError> {
+        let hmm = Self {
+            initial,
+            transitions,
+            means,
+            variances,
+        };
+        hmm.validate()?;
+        Ok(hmm)
+    }
+
+    /// Checks the parameters: at least one state, consistent sizes, finite means, finite
+    /// positive variances, and initial probabilities and transition rows that are non-negative
+    /// and sum to 1 within [`STOCHASTIC_TOLERANCE`].
+    pub fn validate(&self) -> Result<(), HmmError> {
+        let k = self.means.len();
+        let bad = |msg: String| Err(HmmError::InvalidModel(msg));
+        if k == 0 {
+            return bad("the model has no states".into());
+        }
+        if self.initial.len() != k || self.variances.len() != k || self.transitions.len() != k {
+            return bad(format!(
+                "sizes disagree: {} means, {} variances, {} initial probabilities, {} transition rows",
+                k,
+                self.variances.len(),
+                self.initial.len(),
+                self.transitions.len()
+            ));
+        }
+        if let Some(j) = self.means.iter().position(|m| !m.is_finite()) {
+            return bad(format!("mean of state {j} is not finite"));
+        }
+        if let Some(j) = self
+            .variances
+            .iter()
+            .position(|v| !(v.is_finite() && *v > 0.0))
+        {
+            return bad(format!(
+                "variance of state {j} is {}, must be finite and > 0",
+                self.variances[j]
+            ));
+        }
+        check_stochastic(&self.initial, "initial probabilities")?;
+        for (i, row) in self.transitions.iter().enumerate() {
+            if row.len() != k {
+                return bad(format!(
+                    "transition row {i} has {} entries, expected {k}",
+                    row.len()
+                ));
+            }
+            check_stochastic(row, &format!("transition row {i}"))?;
+        }
+        Ok(())
+    }
+
+    /// Number of states.
+    pub fn n_states(&self) -> usize {
+        self.means.len()
+    }
+
+    /// Initial state probabilities.
+    pub fn initial(&self) -> &[f64] {
+        &self.initial
+    }
+
+    /// Transition matrix, row i = probabilities of the next state given state i.
+    pub fn transitions(&self) -> &[Vec<f64>] {
+        &self.transitions
+    }
+
+    /// Emission means, one per state.
+    pub fn means(&self) -> &[f64] {
+        &self.means
+    }
+
+    /// Emission variances, one per state.
+    pub fn variances(&self) -> &[f64] {
+        &self.variances
+    }
+
+    /// Number of free parameters (k − 1 initial, k(k − 1) transition, 2k emission), for
+    /// information criteria.
+    pub fn n_parameters(&self) -> usize {
+        let k = self.n_states();
+        k * k + 2 * k - 1
+    }
+
+    /// Bayesian information criterion −2 ln L + p ln n of this model for a log-likelihood
+    /// `log_likelihood` on `n_observations` samples; lower is better.
+    pub fn bic(&self, log_likelihood: f64, n_observations: usize) -> f64 {
+        -2.0 * log_likelihood + self.n_parameters() as f64 * (n_observations.max(1) as f64).ln()
+    }
+
+    /// Log emission densities ln Γⱼ(y) of every state into `out`. Errors on a non-finite `y`
+    /// (reported with index 0) or an `out` of the wrong length.
+    pub fn log_likelihoods(&self, y: f64, out: &mut [f64]) -> Result<(), HmmError> {
+        self.check_out(out)?;
+        if !y.is_finite() {
+            return Err(HmmError::NonFinite { index: 0, value: y });
+        }
+        let consts = EmissionConsts::new(&self.means, &self.variances);
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = consts.log_density(j, y);
+        }
+        Ok(())
+    }
+
+    /// Emission densities Γⱼ(y) (Gaussian density of state j at `y`) into `out`. Errors on a
+    /// non-finite `y` or an `out` of the wrong length. Far from every state all densities may
+    /// underflow to 0; use [`GaussianHmm::log_likelihoods`] when only their ratios matter.
+    pub fn likelihoods(&self, y: f64, out: &mut [f64]) -> Result<(), HmmError> {
+        self.log_likelihoods(y, out)?;
+        for o in out.iter_mut() {
+            *o = o.exp();
+        }
+        Ok(())
+    }
+
+    /// State of each observation by `rule`. Errors on a non-finite observation.
+    pub fn assign(
+        &self,
+        observations: &[f64],
+        rule: AssignmentRule,
+    ) -> Result<Vec<usize>, HmmError> {
+        match rule {
+            AssignmentRule::MaxLikelihood => {
+                check_finite(observations)?;
+                let consts = EmissionConsts::new(&self.means, &self.variances);
+                Ok(observations
+                    .iter()
+                    .map(|&y| {
+                        let mut best = 0;
+                        let mut best_l = f64::NEG_INFINITY;
+                        for j in 0..self.n_states() {
+                            let l = consts.log_density(j, y);
+                            if l > best_l {
+                                best = j;
+                                best_l = l;
+                            }
+                        }
+                        best
+                    })
+                    .collect())
+            }
+            AssignmentRule::Viterbi => self.viterbi(observations),
+        }
+    }
+
+    /// Most likely state sequence (Viterbi, in log space; ties go to the lower state index).
+    /// Errors on a non-finite observation; an empty sequence gives an empty path.
+    pub fn viterbi(&self, observations: &[f64]) -> Result<Vec<usize>, HmmError> {
+        check_finite(observations)?;
+        let n = observations.len();
+        let k = self.n_states();
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let consts = EmissionConsts::new(&self.means, &self.variances);
+        let log_a: Vec<f64> = self
+            .transitions
+            .iter()
+            .flat_map(|row| row.iter().map(|p| p.ln()))
+            .collect();
+        let mut delta: Vec<f64> = (0..k)
+            .map(|j| self.initial[j].ln() + consts.log_density(j, observations[0]))
+            .collect();
+        let mut next = vec![0.0; k];
+        let mut back = vec![0usize; n * k];
+        for (t, &y) in observations.iter().enumerate().skip(1) {
+            for j in 0..k {
+                let mut best = 0;
+                let mut best_v = f64::NEG_INFINITY;
+                for i in 0..k {
+                    let v = delta[i] + log_a[i * k + j];
+                    if v > best_v {
+                        best = i;
+                        best_v = v;
+                    }
+                }
+                back[t * k + j] = best;
+                next[j] = best_v + consts.log_density(j, y);
+            }
+            std::mem::swap(&mut delta, &mut next);
+        }
+        let mut state = argmax(&delta);
+        let mut path = vec![0; n];
+        for t in (0..n).rev() {
+            path[t] = state;
+            state = back[t * k + state];
+        }
+        Ok(path)
+    }
+
+    /// Log-likelihood of a whole observation sequence under this model (forward algorithm).
+    /// Errors on an empty sequence or a non-finite observation.
+    pub fn log_likelihood(&self, observations: &[f64]) -> Result<f64, HmmError> {
+        if observations.is_empty() {
+            return Err(HmmError::Empty);
+        }
+        check_finite(observations)?;
+        let mut ws = Workspace::new(observations.len(), self.n_states());
+        let params = Params::from_hmm(self);
+        ws.forward(observations, &params)
+            .ok_or(HmmError::Numerical { restarts: 0 })
+    }
+
+    /// Fits an HMM with `n_states` states to `observations` (one sequence) by Baum–Welch.
+    ///
+    /// Each of `settings.restarts` runs starts from a k-means++ initialisation drawn from a
+    /// ChaCha8 generator seeded with `seed` (same seed → bit-identical fit); the run with the
+    /// highest final log-likelihood is kept. State variances never go below
+    /// `settings.variance_floor` × the data variance.
+    ///
+    /// Degenerate data: if the observations have fewer distinct values than `n_states` (a
+    /// constant feature, two distinct values, fewer samples than states), the model gets one state
+    /// per distinct value, so [`GaussianHmm::n_states`] may be below `n_states`. Errors: no
+    /// observations, `n_states == 0`, a non-finite observation (its index), invalid settings.
+    pub fn fit(
+        observations: &[f64],
+        n_states: usize,
+        settings: &HmmSettings,
+        seed: u64,
+    ) -> Result<HmmFit, HmmError> {
+        settings.check()?;
+        if n_states == 0 {
+            return Err(HmmError::NoStates);
+        }
+        if observations.is_empty() {
+            return Err(HmmError::Empty);
+        }
+        check_finite(observations)?;
+        let n = observations.len();
+        let mean = observations.iter().sum::<f64>() / n as f64;
+        let var = observations
+            .iter()
+            .map(|y| (y - mean) * (y - mean))
+            .sum::<f64>()
+            / n as f64;
+        if !(mean.is_finite() && var.is_finite()) {
+            return Err(HmmError::DataRange);
+        }
+        let reference = if var > 0.0 {
+            var
+        } else {
+            mean.abs().max(1.0).powi(2)
+        };
+        let floor = settings.variance_floor * reference;
+
+        let mut sorted = observations.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        sorted.dedup();
+        let k = n_states.min(sorted.len());
+
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut ws = Workspace::new(n, k);
+        let mut best: Option<(Params, Run)> = None;
+        let mut tried: Vec<Params> = Vec::with_capacity(settings.restarts);
+        for _ in 0..settings.restarts {
+            let init = init_kmeanspp(observations, k, floor, &mut rng);
+            // k-means often lands on the same clustering from different seeds; EM from an
+            // identical start gives an identical result, so it is not run twice.
+            if tried.contains(&init) {
+                continue;
+            }
+            tried.push(init.clone());
+            let Some((params, run)) = em(observations, init, floor, settings, &mut ws) else {
+                continue;
+            };
+            let better = match &best {
+                None => true,
+                Some((_, b)) => run.log_likelihood > b.log_likelihood,
+            };
+            if better {
+                best = Some((params, run));
+            }
+        }
+        let Some((params, run)) = best else {
+            return Err(HmmError::Numerical {
+                restarts: settings.restarts,
+            });
+        };
+        let hmm = params.into_sorted_hmm();
+        hmm.validate()?;
+        Ok(HmmFit {
+            hmm,
+            log_likelihood: run.log_likelihood,
+            trace: run.trace,
+            iterations: run.iterations,
+            converged: run.converged,
+        })
+    }
+
+    fn check_out(&self, out: &[f64]) -> Result<(), HmmError> {
+        if out.len() != self.n_states() {
+            return Err(HmmError::OutputLength {
+                expected: self.n_states(),
+                got: out.len(),
+            });
+        }
+        Ok(())
+    }
+}
+
+fn check_stochastic(p: &[f64], what: &str) -> Result<(), HmmError> {
+    if let Some(j) = p.iter().position(|x| !(x.is_finite() && *x >= 0.0)) {
+        return Err(HmmError::InvalidModel(format!(
+            "{what}: entry {j} is {}, must be finite and >= 0",
+            p[j]
+        )));
+    }
+    let s: f64 = p.iter().sum();
+    if (s - 1.0).abs() > STOCHASTIC_TOLERANCE {
+        return Err(HmmError::InvalidModel(format!(
+            "{what} sum to {s}, must sum to 1"
+        )));
+    }
+    Ok(())
+}
+
+fn check_finite(observations: &[f64]) -> Result<(), HmmError> {
+    match observations.iter().position(|y| !y.is_finite()) {
+        Some(index) => Err(HmmError::NonFinite {
+            index,
+            value: observations[index],
+        }),
+        None => Ok(()),
+    }
+}
+
+fn argmax(v: &[f64]) -> usize {
+    let mut best = 0;
+    for (j, x) in v.iter().enumerate() {
+        if *x > v[best] {
+            best = j;
+        }
+    }
+    best
+}
+
+/// eˣ for x in [−700, 0], accurate to a few ulp; an inlinable replacement for `f64::exp` in
+/// the E-step, where it is the hot spot. x = k ln 2 + r with |r| ≤ ln 2 / 2, then eʳ by its
+/// Taylor series to degree 13 (truncation error below 1e-17) and 2ᵏ from the exponent bits.
+#[inline(always)]
+fn exp_nonpositive(x: f64) -> f64 {
+    // ln 2 split so that k × LN2_HI is exact for |k| < 2²⁰.
+    const LN2_HI: f64 = 0.693_147_180_369_123_8;
+    const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
+    // x ≤ 0, so truncating x log₂e − 1/2 towards zero rounds x log₂e to the nearest integer.
+    let k = (x * std::f64::consts::LOG2_E - 0.5) as i64;
+    let kf = k as f64;
+    let r = (x - kf * LN2_HI) - kf * LN2_LO;
+    let mut p = 1.0 / 6_227_020_800.0;
+    for d in [
+        479_001_600.0,
+        39_916_800.0,
+        3_628_800.0,
+        362_880.0,
+        40_320.0,
+        5_040.0,
+        720.0,
+        120.0,
+        24.0,
+        6.0,
+        2.0,
+        1.0,
+        1.0,
+    ] {
+        p = p * r + 1.0 / d;
+    }
+    p * f64::from_bits(((k + 1023) as u64) << 52)
+}
+
+/// Per-state constants of the Gaussian log density.
+struct EmissionConsts {
+    means: Vec<f64>,
+    log_norm: Vec<f64>,
+    inv_sd: Vec<f64>,
+}
+
+impl EmissionConsts {
+    fn new(means: &[f64], variances: &[f64]) -> Self {
+        Self {
+            means: means.to_vec(),
+            log_norm: variances.iter().map(|v| -0.5 * (LN_2PI + v.ln())).collect(),
+            inv_sd: variances.iter().map(|v| 1.0 / v.sqrt()).collect(),
+        }
+    }
+
+    #[inline]
+    fn log_density(&self, j: usize, y: f64) -> f64 {
+        let d = (y - self.means[j]) * self.inv_sd[j];
+        self.log_norm[j] - 0.5 * (d * d).min(MAX_SQUARED_DISTANCE)
+    }
+}
+
+/// Parameters during EM, flat.
+#[derive(Clone, PartialEq)]
+struct Params {
+    k: usize,
+    initial: Vec<f64>,
+    /// Row-major k × k.
+    trans: Vec<f64>,
+    means: Vec<f64>,
+    variances: Vec<f64>,
+}
+
+impl Params {
+    fn from_hmm(h: &GaussianHmm) -> Self {
+        Self {
+            k: h.n_states(),
+            initial: h.initial.clone(),
+            trans: h.transitions.iter().flatten().copied().collect(),
+            means: h.means.clone(),
+            variances: h.variances.clone(),
+        }
+    }
+
+    /// Relabels states by increasing mean and renormalises probabilities exactly.
+    fn into_sorted_hmm(self) -> GaussianHmm {
+        let k = self.k;
+        let mut order: Vec<usize> = (0..k).collect();
+        order.sort_by(|&a, &b| self.means[a].total_cmp(&self.means[b]));
+        let normalise = |v: Vec<f64>| {
+            let s: f64 = v.iter().sum();
+            v.into_iter().map(|x| x / s).collect::<Vec<f64>>()
+        };
+        GaussianHmm {
+            initial: normalise(order.iter().map(|&i| self.initial[i]).collect()),
+            transitions: order
+                .iter()
+                .map(|&i| normalise(order.iter().map(|&j| self.trans[i * k + j]).collect()))
+                .collect(),
+            means: order.iter().map(|&i| self.means[i]).collect(),
+            variances: order.iter().map(|&i| self.variances[i]).collect(),
+        }
+    }
+}
+
+/// Outcome of one EM run.
+struct Run {
+    log_likelihood: f64,
+    trace: Vec<f64>,
+    iterations: usize,
+    converged: bool,
+}
+
+/// Buffers of the forward–backward pass, reused across iterations and restarts.
+struct Workspace {
+    n: usize,
+    k: usize,
+    /// Scaled emissions b'ₜ(j) ∈ [EMISSION_FLOOR, 1], n × k.
+    emis: Vec<f64>,
+    /// ln of the largest emission density at each t.
+    offset: Vec<f64>,
+    /// Forward variables, n × k, rescaled only when their sum falls below [`RESCALE_BELOW`].
+    alpha: Vec<f64>,
+    /// 1 / (rescaling factor) applied at each t (1 where none was applied).
+    inv_scale: Vec<f64>,
+    /// Accumulators of the E-step.
+    gamma_sum: Vec<f64>,
+    gamma_y: Vec<f64>,
+    gamma_yy: Vec<f64>,
+    gamma_first: Vec<f64>,
+    xi_sum: Vec<f64>,
+}
+
+/// The forward variables are rescaled when their sum falls below this; with emissions floored
+/// at [`EMISSION_FLOOR`] one step cannot take them below 1e-250, far from underflow.
+const RESCALE_BELOW: f64 = 1e-100;
+
+impl Workspace {
+    fn new(n: usize, k: usize) -> Self {
+        Self {
+            n,
+            k,
+            emis: vec![0.0; n * k],
+            offset: vec![0.0; n],
+            alpha: vec![0.0; n * k],
+            inv_scale: vec![0.0; n],
+            gamma_sum: vec![0.0; k],
+            gamma_y: vec![0.0; k],
+            gamma_yy: vec![0.0; k],
+            gamma_first: vec![0.0; k],
+            xi_sum: vec![0.0; k * k],
+        }
+    }
+
+    /// Scaled emissions and forward pass; returns the log-likelihood, or None if it is not
+    /// finite.
+    fn forward(&mut self, y: &[f64], p: &Params) -> Option<f64> {
+        // Constant state counts let the compiler unroll the inner loops.
+        match self.k {
+            1 => self.forward_k(1, y, p),
+            2 => self.forward_k(2, y, p),
+            3 => self.forward_k(3, y, p),
+            4 => self.forward_k(4, y, p),
+            5 => self.forward_k(5, y, p),
+            6 => self.forward_k(6, y, p),
+            k => self.forward_k(k, y, p),
+        }
+    }
+
+    #[inline(always)]
+    fn forward_k(&mut self, k: usize, y: &[f64], p: &Params) -> Option<f64> {
+        let consts = EmissionConsts::new(&p.means, &p.variances);
+        let trans = &p.trans[..k * k];
+        for ((row, off), &yt) in self
+            .emis
+            .chunks_exact_mut(k)
+            .zip(self.offset.iter_mut())
+            .zip(y)
+        {
+            let mut m = f64::NEG_INFINITY;
+            let mut best = 0;
+            for (j, r) in row.iter_mut().enumerate() {
+                *r = consts.log_density(j, yt);
+                if *r > m {
+                    m = *r;
+                    best = j;
+                }
+            }
+            // The best state's scaled emission is exactly 1: one exponential saved per step.
+            for (j, r) in row.iter_mut().enumerate() {
+                let d = *r - m;
+                // Far below the floor `exp` would take its slow underflow path.
+                *r = if j == best {
+                    1.0
+                } else if d > LN_EMISSION_FLOOR {
+                    exp_nonpositive(d)
+                } else {
+                    EMISSION_FLOOR
+                };
+            }
+            *off = m;
+        }
+        // Log-likelihood = Σ offsetₜ − Σ ln(inv_scaleₜ) + ln Σ α_T.
+        let mut log_scale = 0.0;
+        let mut prev = [0.0f64; 0].as_slice();
+        for ((cur, b), inv) in self
+            .alpha
+            .chunks_exact_mut(k)
+            .zip(self.emis.chunks_exact(k))
+            .zip(self.inv_scale.iter_mut())
+        {
+            if prev.is_empty() {
+                for j in 0..k {
+                    cur[j] = p.initial[j] * b[j];
+                }
+            } else {
+                for j in 0..k {
+                    let mut s = 0.0;
+                    for i in 0..k {
+                        s += prev[i] * trans[i * k + j];
+                    }
+                    cur[j] = s * b[j];
+                }
+            }
+            let s: f64 = cur.iter().sum();
+            if s < RESCALE_BELOW || !s.is_finite() {
+                if !(s > 0.0 && s.is_finite()) {
+                    return None;
+                }
+                let r = 1.0 / s;
+                for a in cur.iter_mut() {
+                    *a *= r;
+                }
+                *inv = r;
+                log_scale += s.ln();
+            } else {
+                *inv = 1.0;
+            }
+            prev = cur;
+        }
+        // Summed again rather than carried through the loop: a loop-carried value here led the
+        // compiler to compute its logarithm at every step.
+        let last_sum: f64 = prev.iter().sum();
+        let ll = log_scale + last_sum.ln() + self.offset.iter().sum::<f64>();
+        ll.is_finite().then_some(ll)
+    }
+
+    /// Backward pass with the E-step statistics; requires `forward` on the same parameters.
+    /// Returns false on a numerical failure.
+    fn backward(&mut self, y: &[f64], p: &Params) -> bool {
+        match self.k {
+            1 => self.backward_k::<1>(y, p),
+            2 => self.backward_k::<2>(y, p),
+            3 => self.backward_k::<3>(y, p),
+            4 => self.backward_k::<4>(y, p),
+            5 => self.backward_k::<5>(y, p),
+            6 => self.backward_k::<6>(y, p),
+            _ => self.backward_dyn(y, p),
+        }
+    }
+
+    fn backward_k<const K: usize>(&mut self, y: &[f64], p: &Params) -> bool {
+        let mut trans = [[0.0; K]; K];
+        for (i, row) in trans.iter_mut().enumerate() {
+            row.copy_from_slice(&p.trans[i * K..(i + 1) * K]);
+        }
+        let n = self.n;
+        // Σᵢ αₜ(i) βₜ(i) is the same for every t (the forward and backward variables share
+        // their scaling factors), so γ is normalised once, by its value at the last step.
+        let total: f64 = self.alpha[(n - 1) * K..n * K].iter().sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return false;
+        }
+        let mut beta = [1.0f64; K];
+        let mut g_sum = [0.0f64; K];
+        let mut g_y = [0.0f64; K];
+        let mut g_yy = [0.0f64; K];
+        let mut outer = [[0.0f64; K]; K];
+        for t in (0..n).rev() {
+            let alpha = &self.alpha[t * K..(t + 1) * K];
+            let yt = y[t];
+            for i in 0..K {
+                let g = alpha[i] * beta[i];
+                g_sum[i] += g;
+                g_y[i] += g * yt;
+                g_yy[i] += g * yt * yt;
+            }
+            if t == 0 {
+                for i in 0..K {
+                    self.gamma_first[i] = alpha[i] * beta[i];
+                }
+                break;
+            }
+            // ξ_{t−1}(i, j) ∝ α_{t−1}(i) A_ij wₜ(j) with wₜ = b'ₜ βₜ × inv_scaleₜ; A_ij is
+            // factored out of the sum over t. β_{t−1} = A wₜ.
+            let b = &self.emis[t * K..(t + 1) * K];
+            let inv = self.inv_scale[t];
+            let mut w = [0.0f64; K];
+            for j in 0..K {
+                w[j] = b[j] * beta[j] * inv;
+            }
+            let a_prev = &self.alpha[(t - 1) * K..t * K];
+            for i in 0..K {
+                let mut s = 0.0;
+                for j in 0..K {
+                    s += trans[i][j] * w[j];
+                    outer[i][j] += a_prev[i] * w[j];
+                }
+                beta[i] = s;
+            }
+        }
+        let r = 1.0 / total;
+        for i in 0..K {
+            self.gamma_sum[i] = g_sum[i] * r;
+            self.gamma_y[i] = g_y[i] * r;
+            self.gamma_yy[i] = g_yy[i] * r;
+            self.gamma_first[i] *= r;
+            for j in 0..K {
+                self.xi_sum[i * K + j] = trans[i][j] * outer[i][j] * r;
+            }
+        }
+        self.statistics_finite()
+    }
+
+    fn backward_dyn(&mut self, y: &[f64], p: &Params) -> bool {
+        let (n, k) = (self.n, self.k);
+        let total: f64 = self.alpha[(n - 1) * k..n * k].iter().sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return false;
+        }
+        self.gamma_sum.fill(0.0);
+        self.gamma_y.fill(0.0);
+        self.gamma_yy.fill(0.0);
+        self.xi_sum.fill(0.0);
+        let mut beta = vec![1.0; k];
+        let mut w = vec![0.0; k];
+        for t in (0..n).rev() {
+            let alpha = &self.alpha[t * k..(t + 1) * k];
+            let yt = y[t];
+            for i in 0..k {
+                let g = alpha[i] * beta[i];
+                self.gamma_sum[i] += g;
+                self.gamma_y[i] += g * yt;
+                self.gamma_yy[i] += g * yt * yt;
+                if t == 0 {
+                    self.gamma_first[i] = g;
+                }
+            }
+            if t == 0 {
+                break;
+            }
+            let b = &self.emis[t * k..(t + 1) * k];
+            let inv = self.inv_scale[t];
+            for j in 0..k {
+                w[j] = b[j] * beta[j] * inv;
+            }
+            let a_prev = &self.alpha[(t - 1) * k..t * k];
+            for i in 0..k {
+                let mut s = 0.0;
+                for (j, wj) in w.iter().enumerate() {
+                    s += p.trans[i * k + j] * wj;
+                    self.xi_sum[i * k + j] += a_prev[i] * wj;
+                }
+                beta[i] = s;
+            }
+        }
+        let r = 1.0 / total;
+        for i in 0..k {
+            self.gamma_sum[i] *= r;
+            self.gamma_y[i] *= r;
+            self.gamma_yy[i] *= r;
+            self.gamma_first[i] *= r;
+            for j in 0..k {
+                self.xi_sum[i * k + j] *= p.trans[i * k + j] * r;
+            }
+        }
+        self.statistics_finite()
+    }
+
+    fn statistics_finite(&self) -> bool {
+        [
+            &self.gamma_sum,
+            &self.gamma_y,
+            &self.gamma_yy,
+            &self.gamma_first,
+            &self.xi_sum,
+        ]
+        .iter()
+        .all(|v| v.iter().all(|x| x.is_finite()))
+    }
+
+    /// M-step: new parameters from the E-step statistics. States with no weight keep theirs.
+    fn m_step(&self, p: &mut Params, floor: f64) {
+        let k = self.k;
+        let g_total: f64 = self.gamma_first.iter().sum();
+        for i in 0..k {
+            p.initial[i] = self.gamma_first[i] / g_total;
+        }
+        for i in 0..k {
+            let row = &self.xi_sum[i * k..(i + 1) * k];
+            let s: f64 = row.iter().sum();
+            if s > 0.0 && s.is_finite() {
+                for (t, x) in p.trans[i * k..(i + 1) * k].iter_mut().zip(row) {
+                    *t = x / s;
+                }
+            }
+            let w = self.gamma_sum[i];
+            if w > 1e-300 {
+                let mean = self.gamma_y[i] / w;
+                // E[y²] − mean² loses precision when the mean is large against the spread;
+                // the floor bounds the damage and keeps the variance positive.
+                let var = self.gamma_yy[i] / w - mean * mean;
+                p.means[i] = mean;
+                p.variances[i] = if var.is_finite() {
+                    var.max(floor)
+                } else {
+                    floor
+                };
+            }
+        }
+    }
+}
+
+/// One EM run from `init`; None if it fails numerically.
+fn em(
+    y: &[f64],
+    mut p: Params,
+    floor: f64,
+    settings: &HmmSettings,
+    ws: &mut Workspace,
+) -> Option<(Params, Run)> {
+    let n = y.len() as f64;
+    let mut ll = ws.forward(y, &p)?;
+    let mut trace = vec![ll];
+    let mut iterations = 0;
+    let mut converged = false;
+    while iterations < settings.max_iterations {
+        if !ws.backward(y, &p) {
+            return None;
+        }
+        let mut next = p.clone();
+        ws.m_step(&mut next, floor);
+        let next_ll = ws.forward(y, &next)?;
+        iterations += 1;
+        trace.push(next_ll);
+        let gain = next_ll - ll;
+        p = next;
+        ll = next_ll;
+        if gain < settings.tolerance * n {
+            converged = true;
+            break;
+        }
+    }
+    Some((
+        p,
+        Run {
+            log_likelihood: ll,
+            trace,
+            iterations,
+            converged,
+        },
+    ))
+}
+
+/// Seeded k-means++ on scalars followed by a few Lloyd iterations; the clusters give the initial
+/// means, variances (floored), initial probabilities and a smoothed transition matrix.
+/// Requires at least `k` distinct values in `y`.
+fn init_kmeanspp(y: &[f64], k: usize, floor: f64, rng: &mut ChaCha8Rng) -> Params {
+    let n = y.len();
+    let mut centres = Vec::with_capacity(k);
+    centres.push(y[rng.random_range(0..n)]);
+    let mut d2: Vec<f64> = y.iter().map(|v| (v - centres[0]).powi(2)).collect();
+    while centres.len() < k {
+        let total: f64 = d2.iter().sum();
+        let pick = if total > 0.0 && total.is_finite() {
+            let mut r = rng.random::<f64>() * total;
+            let mut pick = None;
+            for (i, d) in d2.iter().enumerate() {
+                if *d > 0.0 {
+                    pick = Some(i);
+                    if r < *d {
+                        break;
+                    }
+                    r -= d;
+                }
+            }
+            pick
+        } else {
+            None
+        };
+        // Rounding can leave `pick` on a zero-distance point only if none is positive, which the
+        // caller rules out by counting distinct values; fall back to the farthest point anyway.
+        let i = pick.unwrap_or_else(|| argmax(&d2));
+        let c = y[i];
+        centres.push(c);
+        for (d, v) in d2.iter_mut().zip(y) {
+            *d = d.min((v - c).powi(2));
+        }
+    }
+    let mut labels = vec![0usize; n];
+    for _ in 0..10 {
+        let mut changed = false;
+        for (l, v) in labels.iter_mut().zip(y) {
+            let mut best = 0;
+            for j in 1..k {
+                if (v - centres[j]).abs() < (v - centres[best]).abs() {
+                    best = j;
+                }
+            }
+            if *l != best {
+                *l = best;
+                changed = true;
+            }
+        }
+        let mut sum = vec![0.0; k];
+        let mut count = vec![0usize; k];
+        for (l, v) in labels.iter().zip(y) {
+            sum[*l] += v;
+            count[*l] += 1;
+        }
+        for j in 0..k {
+            if count[j] > 0 {
+                centres[j] = sum[j] / count[j] as f64;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    let mut count = vec![0.0; k];
+    let mut ss = vec![0.0; k];
+    for (l, v) in labels.iter().zip(y) {
+        count[*l] += 1.0;
+        ss[*l] += (v - centres[*l]).powi(2);
+    }
+    let variances = (0..k)
+        .map(|j| {
+            if count[j] > 0.0 {
+                (ss[j] / count[j]).max(floor)
+            } else {
+                floor
+            }
+        })
+        .collect();
+    // Laplace-smoothed transition counts between consecutive labels.
+    let mut trans = vec![1.0; k * k];
+    for w in labels.windows(2) {
+        trans[w[0] * k + w[1]] += 1.0;
+    }
+    for i in 0..k {
+        let s: f64 = trans[i * k..(i + 1) * k].iter().sum();
+        for x in &mut trans[i * k..(i + 1) * k] {
+            *x /= s;
+        }
+    }
+    let total = n as f64 + k as f64;
+    Params {
+        k,
+        initial: count.iter().map(|c| (c + 1.0) / total).collect(),
+        trans,
+        means: centres,
+        variances,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(32))]
+
+        #[test]
+        fn em_log_likelihood_never_decreases(
+            ys in proptest::collection::vec(-100.0f64..100.0, 1..120),
+            k in 1usize..9,
+            seed in any::<u64>(),
+        ) {
+            let fit = GaussianHmm::fit(&ys, k, &HmmSettings::default(), seed).unwrap();
+            for w in fit.trace.windows(2) {
+                prop_assert!(w[1] >= w[0] - 1e-9 * w[0].abs().max(1.0), "{:?}", fit.trace);
+            }
+            prop_assert!(fit.log_likelihood.is_finite());
+            prop_assert_eq!(fit.log_likelihood, *fit.trace.last().unwrap());
+            prop_assert!(fit.hmm.validate().is_ok());
+            prop_assert!(fit.hmm.means().windows(2).all(|m| m[0] <= m[1]));
+            let states = fit.hmm.assign(&ys, AssignmentRule::MaxLikelihood).unwrap();
+            prop_assert!(states.iter().all(|&s| s < fit.hmm.n_states()));
+            let path = fit.hmm.viterbi(&ys).unwrap();
+            prop_assert_eq!(path.len(), ys.len());
+        }
+
+        #[test]
+        fn fitted_log_likelihood_matches_forward(
+            ys in proptest::collection::vec(-10.0f64..10.0, 5..60),
+            seed in any::<u64>(),
+        ) {
+            let fit = GaussianHmm::fit(&ys, 2, &HmmSettings::default(), seed).unwrap();
+            let ll = fit.hmm.log_likelihood(&ys).unwrap();
+            prop_assert!((ll - fit.log_likelihood).abs() <= 1e-8 * ll.abs().max(1.0));
+        }
+    }
+
+    #[test]
+    fn forward_matches_brute_force_enumeration() {
+        let hmm = GaussianHmm::new(
+            vec![0.3, 0.7],
+            vec![vec![0.9, 0.1], vec![0.2, 0.8]],
+            vec![-1.0, 2.0],
+            vec![0.5, 2.0],
+        )
+        .unwrap();
+        let ys = [0.1, -0.7, 2.5, 1.0];
+        let dens = |j: usize, y: f64| {
+            let mut out = [0.0; 2];
+            hmm.likelihoods(y, &mut out).unwrap();
+            out[j]
+        };
+        let mut total = 0.0;
+        for code in 0..16u32 {
+            let s: Vec<usize> = (0..4).map(|t| ((code >> t) & 1) as usize).collect();
+            let mut p = hmm.initial()[s[0]] * dens(s[0], ys[0]);
+            for t in 1..4 {
+                p *= hmm.transitions()[s[t - 1]][s[t]] * dens(s[t], ys[t]);
+            }
+            total += p;
+        }
+        let ll = hmm.log_likelihood(&ys).unwrap();
+        assert!((ll - total.ln()).abs() < 1e-12, "{ll} vs {}", total.ln());
+    }
+
+    #[test]
+    fn specialised_and_general_backward_agree() {
+        let ys: Vec<f64> = (0..300)
+            .map(|i| ((i as f64) * 0.37).sin() * 3.0 + (i % 7) as f64 * 0.1)
+            .collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for k in 1..=6 {
+            let p = init_kmeanspp(&ys, k, 1e-3, &mut rng);
+            let mut a = Workspace::new(ys.len(), k);
+            let mut b = Workspace::new(ys.len(), k);
+            let la = a.forward(&ys, &p).unwrap();
+            let lb = b.forward(&ys, &p).unwrap();
+            assert_eq!(la, lb);
+            assert!(a.backward(&ys, &p));
+            assert!(b.backward_dyn(&ys, &p));
+            let close = |x: &[f64], y: &[f64]| {
+                x.iter()
+                    .zip(y)
+                    .all(|(u, v)| (u - v).abs() <= 1e-12 * u.abs().max(v.abs()).max(1e-300))
+            };
+            assert!(close(&a.gamma_sum, &b.gamma_sum), "k={k}");
+            assert!(close(&a.gamma_y, &b.gamma_y), "k={k}");
+            assert!(close(&a.gamma_yy, &b.gamma_yy), "k={k}");
+            assert!(close(&a.gamma_first, &b.gamma_first), "k={k}");
+            assert!(close(&a.xi_sum, &b.xi_sum), "k={k}");
+            // γ sums to the number of observations, ξ to one fewer.
+            assert!((a.gamma_sum.iter().sum::<f64>() - ys.len() as f64).abs() < 1e-9);
+            assert!(
+                (a.xi_sum.iter().sum::<f64>() - (ys.len() - 1) as f64).abs() < 1e-9,
+                "k={k} {:?} {:?}",
+                a.xi_sum,
+                a.gamma_sum
+            );
+        }
+    }
+
+    #[test]
+    fn fast_exp_matches_std_exp() {
+        let mut worst: f64 = 0.0;
+        for i in 0..=200_000 {
+            let x = -(i as f64) * (700.0 / 200_000.0);
+            let rel = (exp_nonpositive(x) - x.exp()).abs() / x.exp();
+            worst = worst.max(rel);
+        }
+        assert!(worst < 1e-14, "worst relative error {worst}");
+        assert_eq!(exp_nonpositive(0.0), 1.0);
+    }
+
+    #[test]
+    fn settings_check_rejects_out_of_range() {
+        let bad = [
+            HmmSettings {
+                restarts: 0,
+                ..Default::default()
+            },
+            HmmSettings {
+                max_iterations: 0,
+                ..Default::default()
+            },
+            HmmSettings {
+                tolerance: f64::NAN,
+                ..Default::default()
+            },
+            HmmSettings {
+                variance_floor: 0.0,
+                ..Default::default()
+            },
+            HmmSettings {
+                variance_floor: 2.0,
+                ..Default::default()
+            },
+        ];
+        for s in bad {
+            assert!(matches!(s.check(), Err(HmmError::Settings { .. })), "{s:?}");
+        }
+        assert!(HmmSettings::default().check().is_ok());
+    }
+}
