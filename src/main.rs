@@ -7,6 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use evitrack::evidence;
 use evitrack::sim::{self, Motion, NoiseSettings, SimSettings};
 
 /// Evidential (Dempster–Shafer) pose tracking on a simulated five-bar robot.
@@ -19,6 +20,15 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Combine belief functions given as JSON and print the result as JSON on stdout.
+    ///
+    /// Input: {"frame": N, "rule": "dempster"|"conjunctive", "mass_functions":
+    /// [{"focal": [[0, 5, 7], [1, 2]], "mass": [0.6, 0.4]}, ...]}. Exit status 2 on bad input;
+    /// total conflict prints "conflict_level": "inf" with a warning and exits 0.
+    Combine {
+        /// Input JSON file (`-` reads standard input).
+        file: PathBuf,
+    },
     /// Simulate a motion and write a dataset folder (PNG frames, poses.csv, manifest.json).
     Simulate(SimulateArgs),
     /// Render one frame at a pose (mm, robot frame), for developing features by eye.
@@ -87,6 +97,7 @@ fn main() -> ExitCode {
 
 fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
+        Command::Combine { file } => combine(&file),
         Command::Simulate(args) => simulate(&args),
         Command::Render(args) => render(&args),
     }
@@ -164,5 +175,25 @@ fn render(args: &RenderArgs) -> Result<ExitCode> {
         image.width(),
         image.height()
     );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn combine(file: &Path) -> Result<ExitCode> {
+    let (text, name) = if file == Path::new("-") {
+        let text = std::io::read_to_string(std::io::stdin()).context("reading standard input")?;
+        (text, "standard input".to_string())
+    } else {
+        let text =
+            std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+        (text, file.display().to_string())
+    };
+    let report = evidence::exchange::combine_json(&text)
+        .with_context(|| format!("{name} is not a valid combine input"))?;
+    if report.is_total_conflict() {
+        eprintln!(
+            "warning: the mass functions are in total conflict (κ = 1): no combination exists"
+        );
+    }
+    println!("{}", serde_json::to_string(&report)?);
     Ok(ExitCode::SUCCESS)
 }
