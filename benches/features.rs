@@ -25,6 +25,15 @@ fn features(c: &mut Criterion) {
     group.bench_function("silhouette_only", |b| {
         b.iter(|| extract_silhouette(black_box(&frame), Polarity::BrightOnDark, &cfg))
     });
+    group.bench_function("barycentre_only", |b| {
+        b.iter(|| {
+            evitrack::features::barycentre(
+                black_box(&frame),
+                Polarity::BrightOnDark,
+                evitrack::features::Background::MedianPlusNoise,
+            )
+        })
+    });
     for grid in [16usize, 64] {
         let mut table = FeatureConfig::with_barycentre();
         table.size_functions.mean = MeanMethod::Table;

@@ -56,9 +56,10 @@ pub fn barycentre(
         Background::None => 0,
         Background::Level(l) => l,
         Background::Median | Background::MedianPlusNoise => {
+            let grey = super::silhouette::histogram(raw);
             let mut hist = [0u64; 256];
-            for &v in raw {
-                hist[body(v) as usize] += 1;
+            for (v, &c) in grey.iter().enumerate() {
+                hist[body(v as u8) as usize] += c;
             }
             let med = median_of_hist(&hist, raw.len() as u64);
             if background == Background::Median {
@@ -73,16 +74,33 @@ pub fn barycentre(
             }
         }
     };
-    // Integer sums are exact (≤ 255 · w · h · max(w, h) fits easily in u64 for real frames).
+    // Integer sums are exact; a per-row u32 accumulation keeps the inner loop narrow
+    // (≤ 255 · w · w fits u32 for rows up to 4000 pixels; wider rows fall back to u64 per pixel).
+    let mut lut = [0u32; 256];
+    for (v, l) in lut.iter_mut().enumerate() {
+        *l = u32::from(body(v as u8).saturating_sub(bg));
+    }
     let (mut sw, mut sx, mut sy) = (0u64, 0u64, 0u64);
     for (y, row) in raw.chunks_exact(w as usize).enumerate().take(h as usize) {
-        let mut row_w = 0u64;
-        for (x, &v) in row.iter().enumerate() {
-            let wt = u64::from(body(v).saturating_sub(bg));
-            row_w += wt;
-            sx += wt * x as u64;
+        let (mut row_w, mut row_x) = (0u64, 0u64);
+        if w <= 4000 {
+            let (mut rw, mut rx) = (0u32, 0u32);
+            for (x, &v) in row.iter().enumerate() {
+                let wt = lut[v as usize];
+                rw += wt;
+                rx += wt * x as u32;
+            }
+            row_w += u64::from(rw);
+            row_x += u64::from(rx);
+        } else {
+            for (x, &v) in row.iter().enumerate() {
+                let wt = u64::from(lut[v as usize]);
+                row_w += wt;
+                row_x += wt * x as u64;
+            }
         }
         sw += row_w;
+        sx += row_x;
         sy += row_w * y as u64;
     }
     (sw > 0).then(|| [sx as f64 / sw as f64, sy as f64 / sw as f64])

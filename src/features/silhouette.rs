@@ -81,6 +81,27 @@ pub struct Silhouette {
     pub level: u8,
 }
 
+/// Grey-level histogram. Four interleaved sub-histograms avoid the store-to-load stall of
+/// incrementing the same bin over and over on a near-uniform background.
+pub(crate) fn histogram(raw: &[u8]) -> [u64; 256] {
+    let mut sub = [[0u32; 256]; 4];
+    let mut chunks = raw.chunks_exact(4);
+    for c in &mut chunks {
+        sub[0][c[0] as usize] += 1;
+        sub[1][c[1] as usize] += 1;
+        sub[2][c[2] as usize] += 1;
+        sub[3][c[3] as usize] += 1;
+    }
+    for &p in chunks.remainder() {
+        sub[0][p as usize] += 1;
+    }
+    let mut hist = [0u64; 256];
+    for (v, h) in hist.iter_mut().enumerate() {
+        *h = sub.iter().map(|s| u64::from(s[v])).sum();
+    }
+    hist
+}
+
 /// Otsu's level from a histogram: maximises the between-class variance over splits
 /// `≤ t | > t`; ties (a flat maximum across a gap) resolve to the middle of the tied range.
 /// Returns `(level, dark mean, bright mean)`, or `None` when one class is always empty.
@@ -142,12 +163,12 @@ fn class_means(hist: &[u64; 256], t: u8) -> Option<(f64, f64)> {
 #[derive(Debug, Clone, Copy)]
 struct Component {
     area: usize,
-    sum_x: f64,
-    sum_y: f64,
-    x0: u32,
-    y0: u32,
-    x1: u32,
-    y1: u32,
+    sum_x: u64,
+    sum_y: u64,
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
 }
 
 /// Extract the silhouette of `image` (body brightness `polarity`): threshold, optional opening, largest 8-connected component
@@ -166,10 +187,7 @@ pub fn extract_silhouette(
         return None;
     }
     let raw = image.as_raw();
-    let mut hist = [0u64; 256];
-    for &p in raw.iter() {
-        hist[p as usize] += 1;
-    }
+    let hist = histogram(raw);
     let (level, m0, m1) = match config.threshold {
         Threshold::Otsu => otsu(&hist)?,
         Threshold::Fixed(t) => {
@@ -181,43 +199,55 @@ pub fn extract_silhouette(
         return None;
     }
     let bright = polarity == Polarity::BrightOnDark;
-    let mut mask: Vec<u8> = raw
-        .iter()
-        .map(|&p| u8::from((p > level) == bright))
-        .collect();
-    if config.opening > 0 {
-        let mut img = GrayImage::from_fn(w, h, |x, y| Luma([mask[(y * w + x) as usize] * 255]));
-        imageproc::morphology::open_mut(&mut img, Norm::LInf, config.opening);
-        for (m, p) in mask.iter_mut().zip(img.as_raw()) {
-            *m = u8::from(*p > 0);
+    let (wu, hu) = (w as usize, h as usize);
+    // The mask is padded with one pixel of background all round: labelling needs no bounds
+    // checks and contour tracing sees the image edge as background.
+    let pw = wu + 2;
+    let mut mask = vec![0u8; pw * (hu + 2)];
+    for (y, row) in raw.chunks_exact(wu).enumerate() {
+        let dst = &mut mask[(y + 1) * pw + 1..][..wu];
+        for (d, &p) in dst.iter_mut().zip(row) {
+            *d = u8::from((p > level) == bright);
         }
     }
-    let fg = mask.iter().filter(|&&m| m != 0).count();
-    if fg == 0 || fg == mask.len() {
+    if config.opening > 0 {
+        let mut img = GrayImage::from_fn(w, h, |x, y| {
+            Luma([mask[(y as usize + 1) * pw + x as usize + 1] * 255])
+        });
+        imageproc::morphology::open_mut(&mut img, Norm::LInf, config.opening);
+        for (y, row) in img.as_raw().chunks_exact(wu).enumerate() {
+            let dst = &mut mask[(y + 1) * pw + 1..][..wu];
+            for (d, &p) in dst.iter_mut().zip(row) {
+                *d = u8::from(p > 0);
+            }
+        }
+    }
+    let fg: usize = mask.iter().map(|&m| usize::from(m)).sum();
+    if fg == 0 || fg == wu * hu {
         return None;
     }
-    let (labels, best_label, best) = largest_component(&mask, w as usize, h as usize)?;
+    let (labels, best_label, best) = largest_component(&mut mask, pw)?;
     if best.area < config.min_area.max(1) {
         return None;
     }
-    // Crop to the component's bounding box plus one pixel of background on every side, so the
-    // tracer sees the image edge as background and the contour closes along it.
+    // Crop to the component's bounding box plus one pixel of background on every side (in padded
+    // coordinates the box is x0..=x1, so the crop spans x0 − 1..=x1 + 1, always inside the pad).
     let cw = best.x1 - best.x0 + 3;
     let ch = best.y1 - best.y0 + 3;
-    let crop = GrayImage::from_fn(cw, ch, |cx, cy| {
-        let inside = cx >= 1 && cy >= 1 && cx <= cw - 2 && cy <= ch - 2;
-        let on = inside && {
-            let x = (best.x0 + cx - 1) as usize;
-            let y = (best.y0 + cy - 1) as usize;
-            labels[y * w as usize + x] == best_label
-        };
-        Luma([if on { 255 } else { 0 }])
-    });
+    let mut crop = vec![0u8; cw * ch];
+    for cy in 1..ch - 1 {
+        let src = &labels[(best.y0 + cy - 1) * pw + best.x0..][..cw - 2];
+        for (d, &l) in crop[cy * cw + 1..][..cw - 2].iter_mut().zip(src) {
+            *d = if l == best_label { 255 } else { 0 };
+        }
+    }
+    let crop = GrayImage::from_raw(cw as u32, ch as u32, crop)?;
     let contours = find_contours::<i32>(&crop);
     let outer = contours
         .into_iter()
         .find(|c| c.border_type == BorderType::Outer && c.parent.is_none())?;
-    let (ox, oy) = (f64::from(best.x0) - 1.0, f64::from(best.y0) - 1.0);
+    // Crop (cx, cy) is padded (x0 − 1 + cx, …), i.e. image (x0 − 2 + cx, …).
+    let (ox, oy) = (best.x0 as f64 - 2.0, best.y0 as f64 - 2.0);
     let contour: Vec<[f64; 2]> = outer
         .points
         .iter()
@@ -226,55 +256,85 @@ pub fn extract_silhouette(
     if contour.is_empty() {
         return None;
     }
-    let touches_border = best.x0 == 0 || best.y0 == 0 || best.x1 == w - 1 || best.y1 == h - 1;
+    let touches_border = best.x0 == 1 || best.y0 == 1 || best.x1 == wu || best.y1 == hu;
+    let area = best.area as f64;
     Some(Silhouette {
         area: best.area,
-        centroid: [best.sum_x / best.area as f64, best.sum_y / best.area as f64],
+        // Sums are in padded coordinates: shift back by one pixel.
+        centroid: [
+            best.sum_x as f64 / area - 1.0,
+            best.sum_y as f64 / area - 1.0,
+        ],
         contour,
         touches_border,
         level,
     })
 }
 
-/// Label 8-connected components of `mask` by flood fill; return the labels, the label of the
-/// largest component and its statistics.
-fn largest_component(mask: &[u8], w: usize, h: usize) -> Option<(Vec<u32>, u32, Component)> {
+/// Label 8-connected components of a padded `mask` (row length `pw`, zero border, consumed) by
+/// flood fill; return the labels, the label of the largest component and its statistics (padded coordinates).
+fn largest_component(mask: &mut [u8], pw: usize) -> Option<(Vec<u32>, u32, Component)> {
+    // A pixel is unvisited foreground iff its mask byte is 1; labelling clears it, so the scan
+    // for the next seed can skip zero words eight bytes at a time.
     let mut labels = vec![0u32; mask.len()];
-    let mut stack: Vec<usize> = Vec::new();
+    let mut stack: Vec<(usize, usize, usize)> = Vec::new();
     let mut next = 0u32;
     let mut best: Option<(u32, Component)> = None;
-    for start in 0..mask.len() {
-        if mask[start] == 0 || labels[start] != 0 {
+    let offsets = [pw - 1, pw, pw + 1, 1];
+    let steps = [(-1isize, 1isize), (0, 1), (1, 1), (1, 0)];
+    let mut pos = 0usize;
+    while pos < mask.len() {
+        if pos % 8 == 0 && pos + 8 <= mask.len() {
+            let word = u64::from_ne_bytes(mask[pos..pos + 8].try_into().unwrap_or([1; 8]));
+            if word == 0 {
+                pos += 8;
+                continue;
+            }
+        }
+        if mask[pos] == 0 {
+            pos += 1;
             continue;
         }
+        let start = pos;
         next += 1;
         labels[start] = next;
-        stack.push(start);
+        mask[start] = 0;
+        stack.push((start, start % pw, start / pw));
         let mut c = Component {
             area: 0,
-            sum_x: 0.0,
-            sum_y: 0.0,
-            x0: u32::MAX,
-            y0: u32::MAX,
+            sum_x: 0,
+            sum_y: 0,
+            x0: usize::MAX,
+            y0: usize::MAX,
             x1: 0,
             y1: 0,
         };
-        while let Some(i) = stack.pop() {
-            let (x, y) = (i % w, i / w);
+        while let Some((i, x, y)) = stack.pop() {
             c.area += 1;
-            c.sum_x += x as f64;
-            c.sum_y += y as f64;
-            c.x0 = c.x0.min(x as u32);
-            c.x1 = c.x1.max(x as u32);
-            c.y0 = c.y0.min(y as u32);
-            c.y1 = c.y1.max(y as u32);
-            let ys = y.saturating_sub(1)..=(y + 1).min(h - 1);
-            for ny in ys {
-                for nx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
-                    let j = ny * w + nx;
-                    if mask[j] != 0 && labels[j] == 0 {
+            c.sum_x += x as u64;
+            c.sum_y += y as u64;
+            c.x0 = c.x0.min(x);
+            c.x1 = c.x1.max(x);
+            c.y0 = c.y0.min(y);
+            c.y1 = c.y1.max(y);
+            // The zero border means i ± offset never leaves the buffer for a foreground i.
+            for (&off, &(dx, dy)) in offsets.iter().zip(&steps) {
+                for (j, nx, ny) in [
+                    (
+                        i + off,
+                        x.wrapping_add_signed(dx),
+                        y.wrapping_add_signed(dy),
+                    ),
+                    (
+                        i - off,
+                        x.wrapping_add_signed(-dx),
+                        y.wrapping_add_signed(-dy),
+                    ),
+                ] {
+                    if mask[j] != 0 {
+                        mask[j] = 0;
                         labels[j] = next;
-                        stack.push(j);
+                        stack.push((j, nx, ny));
                     }
                 }
             }

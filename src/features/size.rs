@@ -57,6 +57,10 @@ impl PersistenceDiagram {
     }
 
     /// Recompute into `self`, reusing the buffers of `scratch` (the allocation-free hot path).
+    ///
+    /// The cycle is first reduced to its alternating local minima and maxima: dropping a vertex
+    /// whose value lies between its neighbours' (plateaus included) changes no sublevel set's
+    /// components nor which of them meet a lower one, so ℓ — and hence the diagram — is unchanged.
     pub(crate) fn compute_into(
         &mut self,
         phi: &[f64],
@@ -69,21 +73,41 @@ impl PersistenceDiagram {
                 index: i,
             });
         }
+        let mut extrema = std::mem::take(&mut scratch.extrema);
+        cycle_extrema(phi, &mut extrema);
+        self.union_find(&extrema, scratch);
+        scratch.extrema = extrema;
+        Ok(())
+    }
+
+    /// Union-find over the vertices of the cycle `phi` in increasing order (ties by index),
+    /// elder rule; `phi` is finite.
+    fn union_find(&mut self, phi: &[f64], scratch: &mut CycleScratch) {
+        self.pairs.clear();
         let n = phi.len();
         if n == 0 {
-            return Ok(());
+            return;
         }
         let CycleScratch {
+            keyed,
             order,
             parent,
             rank,
+            ..
         } = scratch;
+        // Sort (key, index) pairs of integers: the key maps f64 to u64 monotonically (the order
+        // of `f64::total_cmp`), and the index breaks ties.
+        keyed.clear();
+        keyed.extend(phi.iter().enumerate().map(|(i, &v)| {
+            let b = v.to_bits();
+            let key = if b >> 63 == 1 { !b } else { b | (1 << 63) };
+            (key, i as u32)
+        }));
+        keyed.sort_unstable();
         order.clear();
-        order.extend(0..n as u32);
-        order
-            .sort_unstable_by(|&i, &j| phi[i as usize].total_cmp(&phi[j as usize]).then(i.cmp(&j)));
+        order.extend(keyed.iter().map(|&(_, i)| i));
         // parent[v] == NONE: v not yet in the filtration. Roots are their component's oldest
-        // vertex, so a root's birth value is phi[root] and "elder" is "smaller root in `order`".
+        // vertex, so a root's birth value is phi[root].
         const NONE: u32 = u32::MAX;
         parent.clear();
         parent.resize(n, NONE);
@@ -134,7 +158,6 @@ impl PersistenceDiagram {
                 parent[younger as usize] = elder;
             }
         }
-        Ok(())
     }
 
     /// The pairs, essential class first (if the function was not empty).
@@ -195,9 +218,44 @@ impl PersistenceDiagram {
 /// Reusable buffers for [`PersistenceDiagram`] on cycles.
 #[derive(Debug, Default, Clone)]
 pub(crate) struct CycleScratch {
+    extrema: Vec<f64>,
+    keyed: Vec<(u64, u32)>,
     order: Vec<u32>,
     parent: Vec<u32>,
     rank: Vec<u32>,
+}
+
+/// The cyclic sequence of `phi` reduced to alternating strict local minima and maxima: plateaus
+/// collapse to one value, vertices strictly between their neighbours go. A constant (or
+/// one-vertex) cycle gives its single value; an empty one gives nothing.
+fn cycle_extrema(phi: &[f64], out: &mut Vec<f64>) {
+    out.clear();
+    let n = phi.len();
+    if n == 0 {
+        return;
+    }
+    // Start right after a change of value so that no plateau wraps around the start.
+    let Some(start) = (0..n).find(|&i| phi[i] != phi[(i + n - 1) % n]) else {
+        out.push(phi[0]);
+        return;
+    };
+    // Collapse plateaus.
+    let mut runs: Vec<f64> = Vec::with_capacity(64);
+    for k in 0..n {
+        let v = phi[(start + k) % n];
+        if runs.last() != Some(&v) {
+            runs.push(v);
+        }
+    }
+    // `start` differs from its predecessor, so the first and last runs differ: no wrap plateau.
+    let m = runs.len();
+    for i in 0..m {
+        let (a, v, b) = (runs[(i + m - 1) % m], runs[i], runs[(i + 1) % m]);
+        let between = (a < v && v < b) || (a > v && v > b);
+        if !between {
+            out.push(v);
+        }
+    }
 }
 
 /// A size-function table: ℓ at the cell centres of a `grid × grid` lattice over a window.
@@ -390,6 +448,28 @@ mod tests {
     }
 
     proptest! {
+        #[test]
+        fn reduction_to_extrema_keeps_the_diagram(
+            phi in prop::collection::vec(0u8..6, 0..40),
+        ) {
+            let phi: Vec<f64> = phi.into_iter().map(f64::from).collect();
+            let mut full = PersistenceDiagram::default();
+            full.union_find(&phi, &mut CycleScratch::default());
+            let reduced = PersistenceDiagram::of_cycle(&phi).unwrap();
+            prop_assert_eq!(sorted(full.pairs().to_vec()), sorted(reduced.pairs().to_vec()));
+            let mut ext = Vec::new();
+            cycle_extrema(&phi, &mut ext);
+            // Extrema alternate: each value is below both or above both of its neighbours.
+            let m = ext.len();
+            if m > 1 {
+                prop_assert!(m % 2 == 0);
+                for i in 0..m {
+                    let (a, v, b) = (ext[(i + m - 1) % m], ext[i], ext[(i + 1) % m]);
+                    prop_assert!((v < a && v < b) || (v > a && v > b));
+                }
+            }
+        }
+
         #[test]
         fn persistence_matches_brute_force_definition(
             phi in prop::collection::vec(0u8..12, 1..40),
