@@ -284,7 +284,7 @@ fn largest_component(mask: &mut [u8], pw: usize) -> Option<(Vec<u32>, u32, Compo
     let steps = [(-1isize, 1isize), (0, 1), (1, 1), (1, 0)];
     let mut pos = 0usize;
     while pos < mask.len() {
-        if pos % 8 == 0 && pos + 8 <= mask.len() {
+        if pos.is_multiple_of(8) && pos + 8 <= mask.len() {
             let word = u64::from_ne_bytes(mask[pos..pos + 8].try_into().unwrap_or([1; 8]));
             if word == 0 {
                 pos += 8;
