@@ -8,7 +8,7 @@
 //! The paper's features (§6.1): the silhouette's outer contour ([`silhouette`]) measured by the
 //! unsigned distance from each of `k` lines through the silhouette centroid, each turned into a
 //! size function whose table mean over a fixed window is one scalar ([`size`]); optionally the
-//! intensity barycentre ([`barycentre`]). [`mesh`] checks the paper's condition 2 on a mesh of
+//! intensity barycentre ([`mod@barycentre`]). [`mesh`] checks the paper's condition 2 on a mesh of
 //! poses; [`synthetic`] draws test frames.
 //!
 //! Conventions: pixel coordinates, `x` = column, `y` = row (downwards), pixel centres at integers.
