@@ -45,8 +45,8 @@ pub enum FeatureError {
         /// Upper end given.
         b: f64,
     },
-    /// The size-function table grid is too small.
-    #[error("size-function table grid {grid} is too small: use at least 2 (e.g. 64)")]
+    /// The size-function table grid is out of range.
+    #[error("size-function table grid {grid} is out of range: use 2 to 4096 (e.g. 64)")]
     BadGrid {
         /// Grid given.
         grid: usize,
@@ -162,7 +162,7 @@ pub struct SizeFunctionConfig {
     pub window: [f64; 2],
     /// Closed form (default) or table mean.
     pub mean: MeanMethod,
-    /// Table grid `G` for [`MeanMethod::Table`] (default 64).
+    /// Table grid `G` for [`MeanMethod::Table`] (default 64, 2 to 4096).
     pub table_grid: usize,
     /// Signed distance from the line instead of the unsigned one (default false). With signed
     /// distances use a window around 0, e.g. `[-128, 128]`.
@@ -237,7 +237,7 @@ impl FeatureConfig {
                 return Err(FeatureError::BadLines { lines: sf.lines });
             }
             let window = Window::new(sf.window[0], sf.window[1])?;
-            if sf.mean == MeanMethod::Table && sf.table_grid < 2 {
+            if sf.mean == MeanMethod::Table && !(2..=4096).contains(&sf.table_grid) {
                 return Err(FeatureError::BadGrid {
                     grid: sf.table_grid,
                 });
@@ -448,6 +448,11 @@ mod tests {
         c.size_functions.mean = MeanMethod::Table;
         c.size_functions.table_grid = 1;
         assert!(matches!(c.check(), Err(FeatureError::BadGrid { grid: 1 })));
+        c.size_functions.table_grid = 5000;
+        assert!(matches!(
+            c.check(),
+            Err(FeatureError::BadGrid { grid: 5000 })
+        ));
         let mut c = FeatureConfig::default();
         c.size_functions.enabled = false;
         assert!(matches!(c.check(), Err(FeatureError::NoFeatures)));
