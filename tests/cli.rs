@@ -26,7 +26,11 @@ fn combine_prints_the_issue_output_shape() {
         {"focal": [[0, 5, 7], [1, 2]], "mass": [0.6, 0.4]},
         {"focal": [[5, 7], [2, 3]], "mass": [0.7, 0.3]}]}"#;
     let out = evitrack(&["combine", "-"], input);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     // κ = 0.6·0.3 + 0.4·0.7 = 0.46; {5,7} gets 0.42/0.54, {2} gets 0.12/0.54.
     assert!((json["conflict_mass"].as_f64().unwrap() - 0.46).abs() < 1e-12);
@@ -87,11 +91,21 @@ fn render_writes_a_frame_and_refuses_poses_outside_the_workspace() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("frame.png");
     let path_text = path.to_str().unwrap();
-    let out = evitrack(&["render", "--x", "-3", "--y", "45", "--out", path_text], "");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = evitrack(
+        &["render", "--x", "-3", "--y", "45", "--out", path_text],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let image = image::open(&path).unwrap();
     assert_eq!((image.width(), image.height()), (170, 120));
-    let out = evitrack(&["render", "--x", "30", "--y", "45", "--out", path_text], "");
+    let out = evitrack(
+        &["render", "--x", "30", "--y", "45", "--out", path_text],
+        "",
+    );
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("outside the workspace"));
 }
@@ -103,7 +117,11 @@ fn simulate_writes_a_readable_dataset_and_rejects_bad_motions() {
     let out_text = out_dir.to_str().unwrap();
     let motion = r#"kind = "circle", radius = 3, speed = 10, duration = 1, fps = 5"#;
     let out = evitrack(&["simulate", "--out", out_text, "--motion", motion], "");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let dataset = evitrack::dataset::Dataset::read(&out_dir).unwrap();
     assert_eq!(dataset.len(), 5);
     // A second run into the same folder would overwrite it: refused.
@@ -112,7 +130,13 @@ fn simulate_writes_a_readable_dataset_and_rejects_bad_motions() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("not empty"));
     let other = dir.path().join("other");
     let out = evitrack(
-        &["simulate", "--out", other.to_str().unwrap(), "--motion", r#"kind = "wobble""#],
+        &[
+            "simulate",
+            "--out",
+            other.to_str().unwrap(),
+            "--motion",
+            r#"kind = "wobble""#,
+        ],
         "",
     );
     assert_eq!(out.status.code(), Some(2));

@@ -364,3 +364,51 @@ fn unsigned_distance_tells_more_nodes_apart_than_signed() {
         "unsigned {unsigned}, signed {signed}"
     );
 }
+
+/// Issue 4's report on the simulated rig itself: over the 1 mm mesh, how many nodes the 8-feature
+/// vector tells apart from their 4-neighbours, and how smooth each feature is (§3.1, condition 2).
+#[test]
+fn simulated_rig_mesh_condition_two() {
+    use evitrack::sim::{simulate, Motion, SimSettings};
+    let dataset = simulate(
+        &SimSettings::default(),
+        &Motion::Mesh { spacing: 1.0 },
+        7,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(dataset.len(), 400);
+    let set = FeatureConfig::with_barycentre().check().unwrap();
+    let values = set.extract_batch(dataset.images());
+    let analysis = analyse_mesh(&values, 20, 20, MeshOrder::Serpentine, 0.01).unwrap();
+    let six: Vec<Vec<Option<f64>>> = values.iter().map(|v| v[..6].to_vec()).collect();
+    let six_analysis = analyse_mesh(&six, 20, 20, MeshOrder::Serpentine, 0.01).unwrap();
+    eprintln!(
+        "simulated rig, 1 mm mesh: 8 features tell {} of {} nodes apart from all 4-neighbours, \
+         the 6 size functions {} (tolerance 1 % of range)",
+        analysis.distinguished, analysis.nodes, six_analysis.distinguished
+    );
+    for (name, f) in set.names().iter().zip(&analysis.features) {
+        eprintln!(
+            "  {name:>13}: range {:.4}, |Δ|/range max {:.3} mean {:.3}, missing {}",
+            f.range, f.max_step, f.mean_step, f.missing
+        );
+    }
+    // Every frame shows a silhouette, and every feature varies with the pose.
+    assert!(analysis
+        .features
+        .iter()
+        .all(|f| f.missing == 0 && f.range > 0.0));
+    // The barycentre follows the end-effector, so with it the vector tells (almost) every node
+    // apart; the size functions alone tell fewer.
+    assert!(analysis.distinguished >= 390, "{}", analysis.distinguished);
+    assert!(six_analysis.distinguished <= analysis.distinguished);
+    // Condition 2: no feature jumps by more than a third of its range between neighbours.
+    for (name, f) in set.names().iter().zip(&analysis.features) {
+        assert!(
+            f.max_step < 0.34,
+            "{name}: max step {:.3} of range",
+            f.max_step
+        );
+    }
+}
