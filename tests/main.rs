@@ -1,5 +1,6 @@
 //! Integration tests: one binary, one module per room.
 
+mod adaptive;
 mod dataset;
 mod evidence;
 mod features;
