@@ -180,7 +180,9 @@ pub fn plot_series(
             ))
             .map_err(|e| plot_error(path, e))?
             .label(line.name.clone())
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+            .legend(move |(x, y)| {
+                PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
         chart
             .draw_series(
                 line.points
@@ -324,7 +326,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let bars = dir.path().join("bars.png");
         let labels = vec!["a".to_string(), "b".to_string()];
-        plot_errors_by_variant(&bars, "t", &labels, &[1.0, 2.0], Some(&[Some(2.3), None])).unwrap();
+        plot_errors_by_variant(&bars, "t", &labels, &[1.0, 2.0], Some(&[Some(2.3), None]))
+            .unwrap();
         assert!(image::open(&bars).is_ok());
         let lines = dir.path().join("lines.png");
         let series = [PlotSeries {
