@@ -1,5 +1,6 @@
 //! Integration tests: one binary, one module per room.
 
+mod adaptive;
 mod cli;
 mod dataset;
 mod evidence;
