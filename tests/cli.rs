@@ -142,3 +142,50 @@ fn simulate_writes_a_readable_dataset_and_rejects_bad_motions() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("not a valid motion"));
 }
+
+#[test]
+fn features_writes_one_named_column_per_feature_plus_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("ds");
+    let motion = r#"kind = "circle", radius = 4, speed = 10, duration = 1, fps = 4"#;
+    let out = evitrack(
+        &[
+            "simulate",
+            "--out",
+            data.to_str().unwrap(),
+            "--motion",
+            motion,
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = evitrack(&["features", data.to_str().unwrap(), "--barycentre"], "");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    assert_eq!(
+        header,
+        "file,t,size_line0,size_line1,size_line2,size_line3,size_line4,size_line5,\
+         barycentre_x,barycentre_y,x,y,theta1,theta2"
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4);
+    for row in &rows {
+        assert_eq!(row.len(), 14);
+        for cell in &row[2..] {
+            assert!(cell.parse::<f64>().unwrap().is_finite(), "{cell}");
+        }
+    }
+    let out = evitrack(&["features", dir.path().join("none").to_str().unwrap()], "");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("manifest.json"));
+}
