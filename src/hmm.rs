@@ -73,6 +73,9 @@ pub enum HmmError {
         /// How many restarts were tried.
         restarts: usize,
     },
+    /// The log-likelihood of a sequence is not finite (values extremely far from every state).
+    #[error("the sequence's log-likelihood is not finite: its values lie extremely far from every state")]
+    NonFiniteLikelihood,
     /// Model parameters are not a valid Gaussian HMM (e.g. a deserialised model).
     #[error("invalid HMM parameters: {0}")]
     InvalidModel(String),
@@ -418,7 +421,7 @@ impl GaussianHmm {
         let mut ws = Workspace::new(observations.len(), self.n_states());
         let params = Params::from_hmm(self);
         ws.forward(observations, &params)
-            .ok_or(HmmError::Numerical { restarts: 0 })
+            .ok_or(HmmError::NonFiniteLikelihood)
     }
 
     /// Fits an HMM with `n_states` states to `observations` (one sequence) by Baum–Welch.
@@ -468,19 +471,22 @@ impl GaussianHmm {
         sorted.dedup();
         let k = n_states.min(sorted.len());
 
+        // EM runs on centred data: the second-moment variance update loses precision when the
+        // mean is large against the spread.
+        let centred: Vec<f64> = observations.iter().map(|y| y - mean).collect();
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut ws = Workspace::new(n, k);
         let mut best: Option<(Params, Run)> = None;
         let mut tried: Vec<Params> = Vec::with_capacity(settings.restarts);
         for _ in 0..settings.restarts {
-            let init = init_kmeanspp(observations, k, floor, &mut rng);
+            let init = init_kmeanspp(&centred, k, floor, &mut rng);
             // k-means often lands on the same clustering from different seeds; EM from an
             // identical start gives an identical result, so it is not run twice.
             if tried.contains(&init) {
                 continue;
             }
             tried.push(init.clone());
-            let Some((params, run)) = em(observations, init, floor, settings, &mut ws) else {
+            let Some((params, run)) = em(&centred, init, floor, settings, &mut ws) else {
                 continue;
             };
             let better = match &best {
@@ -491,11 +497,14 @@ impl GaussianHmm {
                 best = Some((params, run));
             }
         }
-        let Some((params, run)) = best else {
+        let Some((mut params, run)) = best else {
             return Err(HmmError::Numerical {
                 restarts: settings.restarts,
             });
         };
+        for m in &mut params.means {
+            *m += mean;
+        }
         let hmm = params.into_sorted_hmm();
         hmm.validate()?;
         Ok(HmmFit {

@@ -301,3 +301,18 @@ fn settings_reject_unknown_fields_and_fill_defaults() {
     assert_eq!(s.max_iterations, HmmSettings::default().max_iterations);
     assert!(toml::from_str::<HmmSettings>("restart = 5").is_err());
 }
+
+#[test]
+fn large_offset_does_not_spoil_variances() {
+    let truth = known_hmm();
+    let (ys, _) = sample(&truth, 3000, 12);
+    let shifted: Vec<f64> = ys.iter().map(|y| y + 1e9).collect();
+    let a = GaussianHmm::fit(&ys, 3, &HmmSettings::default(), 2).unwrap();
+    let b = GaussianHmm::fit(&shifted, 3, &HmmSettings::default(), 2).unwrap();
+    for j in 0..3 {
+        assert!((b.hmm.means()[j] - 1e9 - a.hmm.means()[j]).abs() < 1e-3);
+        let rel = b.hmm.variances()[j] / a.hmm.variances()[j];
+        assert!((rel - 1.0).abs() < 1e-3, "variance {j} ratio {rel}");
+    }
+    assert!((a.log_likelihood - b.log_likelihood).abs() < 1e-3 * a.log_likelihood.abs());
+}
