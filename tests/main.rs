@@ -6,5 +6,6 @@ mod dataset;
 mod evidence;
 mod features;
 mod hmm;
+mod model;
 mod pipeline;
 mod sim;
