@@ -34,7 +34,7 @@ const HEADER: [&str; 6] = ["file", "t", "x", "y", "theta1", "theta2"];
 #[non_exhaustive]
 pub enum DatasetError {
     /// A file could not be read or written.
-    #[error("{path}: {source} (check the path and permissions)")]
+    #[error("{}: cannot access it (check the path and permissions)", path.display())]
     Io {
         /// The file or folder.
         path: PathBuf,

@@ -11,6 +11,7 @@
 //! [`experiment`]s whose results the [`report`] module writes as tables, CSV, JSON and plots.
 #![deny(missing_docs)]
 
+pub mod adaptive;
 pub mod dataset;
 pub mod evidence;
 pub mod experiment;

@@ -1,8 +1,11 @@
 //! Integration tests: one binary, one module per room.
 
+mod adaptive;
+mod cli;
 mod dataset;
 mod evidence;
 mod features;
 mod hmm;
+mod model;
 mod pipeline;
 mod sim;

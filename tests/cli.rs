@@ -1,0 +1,191 @@
+//! The command line, run as a user would: exit statuses, stdout, stderr.
+
+use std::io::Write;
+use std::process::{Command, Output, Stdio};
+
+fn evitrack(args: &[&str], stdin: &str) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_evitrack"))
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the evitrack binary starts");
+    child
+        .stdin
+        .take()
+        .expect("stdin is piped")
+        .write_all(stdin.as_bytes())
+        .expect("stdin accepts the input");
+    child.wait_with_output().expect("evitrack finishes")
+}
+
+#[test]
+fn combine_prints_the_issue_output_shape() {
+    let input = r#"{"frame": 400, "rule": "dempster", "mass_functions": [
+        {"focal": [[0, 5, 7], [1, 2]], "mass": [0.6, 0.4]},
+        {"focal": [[5, 7], [2, 3]], "mass": [0.7, 0.3]}]}"#;
+    let out = evitrack(&["combine", "-"], input);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // κ = 0.6·0.3 + 0.4·0.7 = 0.46; {5,7} gets 0.42/0.54, {2} gets 0.12/0.54.
+    assert!((json["conflict_mass"].as_f64().unwrap() - 0.46).abs() < 1e-12);
+    let level = json["conflict_level"].as_f64().unwrap();
+    assert!((level - (1.0f64 / 0.54).ln()).abs() < 1e-12);
+    assert_eq!(json["focal"], serde_json::json!([[5, 7], [2]]));
+    let plausibility = json["plausibility"].as_array().unwrap();
+    assert_eq!(plausibility.len(), 400);
+    assert!((plausibility[5].as_f64().unwrap() - 0.42 / 0.54).abs() < 1e-12);
+}
+
+#[test]
+fn combine_total_conflict_is_inf_with_a_warning_and_status_zero() {
+    let input = r#"{"frame": 3, "rule": "dempster", "mass_functions": [
+        {"focal": [[0]], "mass": [1]}, {"focal": [[1]], "mass": [1]}]}"#;
+    let out = evitrack(&["combine", "-"], input);
+    assert_eq!(out.status.code(), Some(0));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["conflict_level"], "inf");
+    assert_eq!(json["focal"], serde_json::json!([]));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("total conflict"));
+}
+
+#[test]
+fn combine_bad_input_names_the_culprit_and_exits_2() {
+    let cases = [
+        (
+            r#"{"frame": 4, "rule": "dempster", "mass_functions": [
+                {"focal": [[0]], "mass": [1]}, {"focal": [[0], [9]], "mass": [0.5, 0.5]}]}"#,
+            "mass function 1, focal set 1",
+        ),
+        (
+            r#"{"frame": 4, "rule": "dempster", "mass_functions": [
+                {"focal": [[0], [1]], "mass": [0.5, 0.2]}]}"#,
+            "mass function 0",
+        ),
+        (
+            r#"{"frame": 4, "rule": "dempster", "mass_functions": [
+                {"focal": [[0], []], "mass": [0.5, 0.5]}]}"#,
+            "focal set 1",
+        ),
+        (
+            r#"{"frame": 4, "rule": "dempster", "typo": 1, "mass_functions": []}"#,
+            "unknown field `typo`",
+        ),
+    ];
+    for (input, expected) in cases {
+        let out = evitrack(&["combine", "-"], input);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{input}: {stderr}");
+        assert!(stderr.contains(expected), "{expected:?} not in {stderr}");
+        assert!(out.stdout.is_empty());
+    }
+}
+
+#[test]
+fn render_writes_a_frame_and_refuses_poses_outside_the_workspace() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("frame.png");
+    let path_text = path.to_str().unwrap();
+    let out = evitrack(
+        &["render", "--x", "-3", "--y", "45", "--out", path_text],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let image = image::open(&path).unwrap();
+    assert_eq!((image.width(), image.height()), (170, 120));
+    let out = evitrack(
+        &["render", "--x", "30", "--y", "45", "--out", path_text],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("outside the workspace"));
+}
+
+#[test]
+fn simulate_writes_a_readable_dataset_and_rejects_bad_motions() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().join("ds");
+    let out_text = out_dir.to_str().unwrap();
+    let motion = r#"kind = "circle", radius = 3, speed = 10, duration = 1, fps = 5"#;
+    let out = evitrack(&["simulate", "--out", out_text, "--motion", motion], "");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let dataset = evitrack::dataset::Dataset::read(&out_dir).unwrap();
+    assert_eq!(dataset.len(), 5);
+    // A second run into the same folder would overwrite it: refused.
+    let out = evitrack(&["simulate", "--out", out_text, "--motion", motion], "");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not empty"));
+    let other = dir.path().join("other");
+    let out = evitrack(
+        &[
+            "simulate",
+            "--out",
+            other.to_str().unwrap(),
+            "--motion",
+            r#"kind = "wobble""#,
+        ],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a valid motion"));
+}
+
+#[test]
+fn features_writes_one_named_column_per_feature_plus_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("ds");
+    let motion = r#"kind = "circle", radius = 4, speed = 10, duration = 1, fps = 4"#;
+    let out = evitrack(
+        &[
+            "simulate",
+            "--out",
+            data.to_str().unwrap(),
+            "--motion",
+            motion,
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = evitrack(&["features", data.to_str().unwrap(), "--barycentre"], "");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    assert_eq!(
+        header,
+        "file,t,size_line0,size_line1,size_line2,size_line3,size_line4,size_line5,\
+         barycentre_x,barycentre_y,x,y,theta1,theta2"
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4);
+    for row in &rows {
+        assert_eq!(row.len(), 14);
+        for cell in &row[2..] {
+            assert!(cell.parse::<f64>().unwrap().is_finite(), "{cell}");
+        }
+    }
+    let out = evitrack(&["features", dir.path().join("none").to_str().unwrap()], "");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("manifest.json"));
+}
