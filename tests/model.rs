@@ -3,8 +3,8 @@
 use evitrack::evidence::Subset;
 use evitrack::hmm::{AssignmentRule, GaussianHmm, HmmSettings};
 use evitrack::model::{
-    EvidentialModel, FeatureModel, ModelError, ModelSettings, StateCountTuner, StateCounts, Tuning,
-    FORMAT_VERSION,
+    EvidentialModel, FeatureModel, ModelError, ModelSettings, StateCountTuner, StateCounts,
+    TunerError, Tuning, FORMAT_VERSION,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -489,7 +489,7 @@ impl StateCountTuner for PreferCount {
         feature: usize,
         candidate: &FeatureModel,
         sample_poses: &[[f64; 2]],
-    ) -> Result<f64, String> {
+    ) -> Result<f64, TunerError> {
         assert_eq!(sample_poses.len(), candidate.assignment().len());
         self.1.push((feature, candidate.requested_states()));
         Ok((candidate.requested_states() as f64 - self.0 as f64).abs())
@@ -544,13 +544,27 @@ fn validation_tuning_goes_through_the_tuner_hook() {
 
     struct Failing;
     impl StateCountTuner for Failing {
-        fn score(&mut self, _: usize, _: &FeatureModel, _: &[[f64; 2]]) -> Result<f64, String> {
+        fn score(&mut self, _: usize, _: &FeatureModel, _: &[[f64; 2]]) -> Result<f64, TunerError> {
             Err("tracker diverged".into())
         }
     }
     let err = EvidentialModel::train_with_tuner(&poses, &names, &rows, &settings, &mut Failing)
         .unwrap_err();
     assert!(err.to_string().contains("tracker diverged"), "{err}");
+
+    struct NotANumber;
+    impl StateCountTuner for NotANumber {
+        fn score(&mut self, _: usize, _: &FeatureModel, _: &[[f64; 2]]) -> Result<f64, TunerError> {
+            Ok(f64::NAN)
+        }
+    }
+    let err = EvidentialModel::train_with_tuner(&poses, &names, &rows, &settings, &mut NotANumber)
+        .unwrap_err();
+    assert!(
+        matches!(&err, ModelError::Tuner { feature, states: 2, .. } if feature == "f0"),
+        "{err}"
+    );
+    assert!(err.to_string().contains("not finite"), "{err}");
 }
 
 #[test]

@@ -98,14 +98,14 @@ pub enum ModelError {
     #[error("tuning method `validation` needs the tracker: call EvidentialModel::train_with_tuner with a StateCountTuner, or use `given` or `bic`")]
     TunerRequired,
     /// A tuner failed or returned a non-finite score.
-    #[error("state-count tuner failed on feature `{feature}` with {states} states: {reason}")]
+    #[error("state-count tuner failed on feature `{feature}` with {states} states: {source}")]
     Tuner {
         /// Feature name.
         feature: String,
         /// Candidate state count.
         states: usize,
         /// What went wrong.
-        reason: String,
+        source: TunerError,
     },
     /// Fitting or using a feature's HMM failed.
     #[error("feature `{feature}`: {source}")]
@@ -337,6 +337,9 @@ impl ModelSettings {
     }
 }
 
+/// Error returned by a [`StateCountTuner`] (any error type, boxed).
+pub type TunerError = Box<dyn std::error::Error + Send + Sync>;
+
 /// Hook for tuning state counts by a score the model cannot compute itself, such as the
 /// tracker's estimation error on a validation motion (§5.2).
 pub trait StateCountTuner {
@@ -348,7 +351,7 @@ pub trait StateCountTuner {
         feature: usize,
         candidate: &FeatureModel,
         sample_poses: &[[f64; 2]],
-    ) -> Result<f64, String>;
+    ) -> Result<f64, TunerError>;
 }
 
 /// One feature of the model: its HMM, its frame Θᵢ (the kept HMM states) and its refining
@@ -727,18 +730,18 @@ impl EvidentialModel {
                     (Tuning::Given, _) => 0.0,
                     (Tuning::Bic { .. }, _) => candidate.bic(),
                     (Tuning::Validation { .. }, Some(t)) => {
-                        let s = t.score(f, &candidate, sample_poses).map_err(|reason| {
+                        let s = t.score(f, &candidate, sample_poses).map_err(|source| {
                             ModelError::Tuner {
                                 feature: name.clone(),
                                 states: n,
-                                reason,
+                                source,
                             }
                         })?;
                         if !s.is_finite() {
                             return Err(ModelError::Tuner {
                                 feature: name.clone(),
                                 states: n,
-                                reason: format!("score {s} is not finite"),
+                                source: format!("score {s} is not finite").into(),
                             });
                         }
                         s
