@@ -13,7 +13,7 @@ use evitrack::evidence::Constructor;
 use evitrack::experiment::{self, RunSummary, Workbench};
 use evitrack::features::FeatureConfig;
 use evitrack::model::{EvidentialModel, ModelSettings, StateCounts, Tuning};
-use evitrack::report::{ErrorStats, Table};
+use evitrack::report::{self, ErrorStats, Table};
 use evitrack::scenario::ScenarioSet;
 use evitrack::sim::{self, Motion, NoiseSettings, SimSettings};
 use evitrack::track::TrackSettings;
@@ -31,6 +31,11 @@ enum Command {
     /// Run a scenario end to end: simulate, train, track, report. Without a file it runs the
     /// built-in default, the paper's dense Bayesian setup (Figure 2a).
     Run(RunArgs),
+    /// Run every variant of one or more scenario files (in parallel), print one table, write
+    /// CSV/JSON and plots; `--check` fails when a variant misses its expectations.
+    Sweep(SweepArgs),
+    /// Merge the JSON results of sweep shards (`sweep --shard i/n`) into one table and report.
+    Merge(MergeArgs),
     /// Combine belief functions given as JSON and print the result as JSON on stdout.
     ///
     /// Input: {"frame": N, "rule": "dempster"|"conjunctive", "mass_functions":
@@ -183,6 +188,39 @@ enum ConstructorArg {
     Consonant,
 }
 
+#[derive(Debug, Args)]
+struct SweepArgs {
+    /// Scenario files (TOML) whose [sweep] variants to run.
+    #[arg(required = true)]
+    scenarios: Vec<PathBuf>,
+    /// Variants run at once (default: the number of cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Compare against each variant's expectations; exit 1 with a list of what regressed.
+    #[arg(long)]
+    check: bool,
+    /// Run only slice i of n (1-based, e.g. `2/4`) of the variants, for batch schedulers; merge
+    /// the shards' JSON files with `evitrack merge`.
+    #[arg(long)]
+    shard: Option<String>,
+    /// Output folder.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+struct MergeArgs {
+    /// Shard result files (`sweep-shard-*.json`) written by `sweep --shard`.
+    #[arg(required = true)]
+    shards: Vec<PathBuf>,
+    /// Output folder for the merged table, CSV, JSON and plots.
+    #[arg(long)]
+    out: PathBuf,
+    /// Compare against the expectations; exit 1 with a list of what regressed.
+    #[arg(long)]
+    check: bool,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match dispatch(cli.command) {
@@ -198,6 +236,8 @@ fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
         Command::Combine { file } => combine(&file),
         Command::Run(args) => run(&args),
+        Command::Sweep(args) => sweep(&args),
+        Command::Merge(args) => merge(&args),
         Command::Simulate(args) => simulate(&args),
         Command::Render(args) => render(&args),
         Command::Features(args) => features(&args),
@@ -696,4 +736,221 @@ fn track_dataset(args: &TrackArgs) -> Result<ExitCode> {
         ),
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Parses `i/n` (1-based) into a zero-based slice index and the slice count.
+fn parse_shard(text: &str) -> Result<(usize, usize)> {
+    let parsed = text.split_once('/').and_then(|(i, n)| {
+        Some((
+            i.trim().parse::<usize>().ok()?,
+            n.trim().parse::<usize>().ok()?,
+        ))
+    });
+    match parsed {
+        Some((i, n)) if n >= 1 && (1..=n).contains(&i) => Ok((i - 1, n)),
+        _ => bail!("--shard `{text}` must look like `i/n` with 1 ≤ i ≤ n, e.g. `2/4`"),
+    }
+}
+
+fn sweep(args: &SweepArgs) -> Result<ExitCode> {
+    let mut variants = Vec::new();
+    for path in &args.scenarios {
+        let set = ScenarioSet::load(path)?;
+        variants.extend(set.variants);
+    }
+    let names: std::collections::HashSet<&str> = variants.iter().map(|v| v.name.as_str()).collect();
+    if names.len() != variants.len() {
+        bail!("two variants of these scenario files have the same name: rename one scenario");
+    }
+    let total = variants.len();
+    let shard = args.shard.as_deref().map(parse_shard).transpose()?;
+    if let Some((i, n)) = shard {
+        variants = variants
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| k % n == i)
+            .map(|(_, v)| v)
+            .collect();
+        eprintln!(
+            "shard {}/{n}: {} of {total} variants",
+            i + 1,
+            variants.len()
+        );
+    }
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let bench = Workbench::new();
+    let labels: Vec<String> = variants.iter().map(|v| v.name.clone()).collect();
+    let bars = StageBars::new(&labels);
+    let clock = std::time::Instant::now();
+    let outputs = experiment::run_all(&variants, jobs, &bench, &|i, stage, done, total| {
+        bars.update(i, stage, done, total)
+    });
+    bars.finish();
+    let elapsed = clock.elapsed().as_secs_f64();
+    let mut summaries = Vec::new();
+    let mut failures = Vec::new();
+    for (variant, output) in variants.iter().zip(outputs) {
+        match output {
+            Ok(output) => {
+                experiment::write_run(&args.out.join(&variant.name), &output)?;
+                summaries.push(output.summary);
+            }
+            Err(error) => failures.push(format!("{}: {error}", variant.name)),
+        }
+    }
+    let file_name = match shard {
+        Some((i, n)) => format!("sweep-shard-{}-of-{n}.json", i + 1),
+        None => "sweep.json".to_string(),
+    };
+    write_sweep_report(&args.out, &file_name, &summaries)?;
+    eprintln!(
+        "{} variants in {elapsed:.1} s on {jobs} jobs; per-variant outputs in {}/<variant>/",
+        summaries.len(),
+        args.out.display()
+    );
+    finish_sweep(&summaries, &failures, args.check)
+}
+
+/// Prints the table, writes JSON, CSV and plots of a set of run summaries.
+fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let refs: Vec<&RunSummary> = summaries.iter().collect();
+    println!("{}", error_table(&refs));
+    let json_path = out.join(json_name);
+    std::fs::write(&json_path, serde_json::to_string_pretty(summaries)? + "\n")
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    let csv_path = out.join(json_name.replace(".json", ".csv"));
+    let mut csv = csv::Writer::from_path(&csv_path)
+        .with_context(|| format!("writing {}", csv_path.display()))?;
+    csv.write_record([
+        "scenario",
+        "samples",
+        "states",
+        "constructor",
+        "threshold",
+        "mean",
+        "median",
+        "rms",
+        "max",
+        "paper",
+        "frames",
+        "without_estimate",
+        "flagged",
+        "expected_max_mean",
+    ])?;
+    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
+    for s in summaries {
+        let states: Vec<String> = s.states.iter().map(usize::to_string).collect();
+        csv.write_record([
+            s.scenario.clone(),
+            s.samples.to_string(),
+            states.join(" "),
+            s.constructor.clone(),
+            s.conflict_threshold.to_string(),
+            num(s.error.map(|e| e.mean)),
+            num(s.error.map(|e| e.median)),
+            num(s.error.map(|e| e.rms)),
+            num(s.error.map(|e| e.max)),
+            num(s.paper_error),
+            s.frames.to_string(),
+            s.frames_without_estimate.to_string(),
+            s.frames_flagged.to_string(),
+            num(s.expect.max_mean_error),
+        ])?;
+    }
+    csv.flush()?;
+    let plotted: Vec<&RunSummary> = summaries.iter().filter(|s| s.error.is_some()).collect();
+    if !plotted.is_empty() {
+        let labels: Vec<String> = plotted.iter().map(|s| s.scenario.clone()).collect();
+        let errors: Vec<f64> = plotted
+            .iter()
+            .filter_map(|s| s.error.map(|e| e.mean))
+            .collect();
+        let paper: Vec<Option<f64>> = plotted.iter().map(|s| s.paper_error).collect();
+        let has_paper = paper.iter().any(Option::is_some);
+        report::plot_errors_by_variant(
+            &out.join(json_name.replace(".json", "-errors.png")),
+            "mean estimation error per variant",
+            &labels,
+            &errors,
+            has_paper.then_some(paper.as_slice()),
+        )?;
+        // Where the variants differ in their state counts, error against the total count.
+        let totals: Vec<usize> = plotted.iter().map(|s| s.states.iter().sum()).collect();
+        if totals
+            .iter()
+            .collect::<std::collections::HashSet<_>>()
+            .len()
+            > 1
+        {
+            let mut points: Vec<(f64, f64)> = totals
+                .iter()
+                .zip(&errors)
+                .map(|(&n, &e)| (n as f64, e))
+                .collect();
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            report::plot_series(
+                &out.join(json_name.replace(".json", "-states.png")),
+                "mean error against the total number of states",
+                "Σ nᵢ (states over all features)",
+                "mean error (mm)",
+                &[report::PlotSeries {
+                    name: "variants".into(),
+                    points,
+                }],
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Reports failures and regressions; exit status 1 when `check` finds any.
+fn finish_sweep(summaries: &[RunSummary], failures: &[String], check: bool) -> Result<ExitCode> {
+    for failure in failures {
+        eprintln!("failed: {failure}");
+    }
+    let regressions: Vec<String> = summaries.iter().flat_map(RunSummary::regressions).collect();
+    if check {
+        if regressions.is_empty() && failures.is_empty() {
+            eprintln!(
+                "check: all {} variants meet their expectations",
+                summaries.len()
+            );
+        } else {
+            eprintln!("check: {} regressions", regressions.len() + failures.len());
+            for line in &regressions {
+                eprintln!("  - {line}");
+            }
+            return Ok(ExitCode::from(1));
+        }
+    }
+    Ok(if failures.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(2)
+    })
+}
+
+fn merge(args: &MergeArgs) -> Result<ExitCode> {
+    let mut summaries: Vec<RunSummary> = Vec::new();
+    for path in &args.shards {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let shard: Vec<RunSummary> = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a sweep result file", path.display()))?;
+        summaries.extend(shard);
+    }
+    let mut seen = std::collections::HashSet::new();
+    if let Some(dup) = summaries.iter().find(|s| !seen.insert(s.scenario.clone())) {
+        bail!(
+            "variant `{}` appears in two shard files: merge each shard once",
+            dup.scenario
+        );
+    }
+    write_sweep_report(&args.out, "sweep.json", &summaries)?;
+    finish_sweep(&summaries, &[], args.check)
 }

@@ -1,1 +1,107 @@
+//! The whole pipeline on the paper's table: the CI regression guard on estimation error.
 
+use evitrack::experiment::{run_all, RunSummary, Workbench};
+use evitrack::scenario::{Scenario, ScenarioSet};
+
+fn paper() -> ScenarioSet {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/paper.toml");
+    ScenarioSet::load(std::path::Path::new(path)).expect("scenarios/paper.toml is valid")
+}
+
+fn run_paper() -> Vec<RunSummary> {
+    let set = paper();
+    let bench = Workbench::new();
+    run_all(&set.variants, 2, &bench, &|_, _, _, _| {})
+        .into_iter()
+        .zip(&set.variants)
+        .map(|(result, variant)| {
+            result
+                .unwrap_or_else(|e| panic!("variant {} failed: {e}", variant.name))
+                .summary
+        })
+        .collect()
+}
+
+fn mean(summary: &RunSummary) -> f64 {
+    summary
+        .error
+        .expect("every paper variant has estimates")
+        .mean
+}
+
+#[test]
+fn paper_table_meets_its_expectations() {
+    let summaries = run_paper();
+    let names: Vec<&str> = summaries.iter().map(|s| s.scenario.as_str()).collect();
+    assert_eq!(
+        names,
+        ["paper-a", "paper-b", "paper-c", "paper-d", "paper-e"]
+    );
+    for s in &summaries {
+        eprintln!(
+            "{}: mean {:.4} mm (paper {:?})",
+            s.scenario,
+            mean(s),
+            s.paper_error
+        );
+    }
+    let regressions: Vec<String> = summaries.iter().flat_map(RunSummary::regressions).collect();
+    assert!(regressions.is_empty(), "{regressions:#?}");
+    let [a, b, c, d, e] = [0, 1, 2, 3, 4].map(|i| &summaries[i]);
+    assert_eq!(
+        c.samples * 2,
+        a.samples,
+        "(c) keeps every other sample of (a)"
+    );
+    assert_eq!(e.features.len(), 8);
+    // Findings of the paper that hold on this rig (see README): more states for features 2 and 3
+    // help, and the barycentre features help most.
+    assert!(mean(b) < mean(a));
+    assert!(mean(e) < mean(b));
+    // With no conflict threshold every feature is combined, and the consonant constructor gives
+    // the same relative plausibilities as the Bayesian one (the contour-function identity).
+    assert!((mean(d) - mean(a)).abs() < 1e-9);
+}
+
+#[test]
+fn same_scenario_and_seed_give_identical_results_whatever_the_jobs() {
+    let set = paper();
+    let variants: Vec<Scenario> = set.variants[..2].to_vec();
+    let strip = |mut s: RunSummary| {
+        s.timings = Default::default();
+        s
+    };
+    let one: Vec<RunSummary> = run_all(&variants, 1, &Workbench::new(), &|_, _, _, _| {})
+        .into_iter()
+        .map(|r| strip(r.unwrap().summary))
+        .collect();
+    let two: Vec<RunSummary> = run_all(&variants, 2, &Workbench::new(), &|_, _, _, _| {})
+        .into_iter()
+        .map(|r| strip(r.unwrap().summary))
+        .collect();
+    assert_eq!(one, two);
+    // Another seed draws other noise: the numbers move.
+    let mut reseeded = variants[0].clone();
+    reseeded.seed += 1;
+    let other = run_all(&[reseeded], 1, &Workbench::new(), &|_, _, _, _| {})
+        .pop()
+        .unwrap()
+        .unwrap()
+        .summary;
+    assert_ne!(other.error, one[0].error);
+}
+
+#[test]
+fn built_in_default_is_the_papers_setup_a() {
+    let set = paper();
+    let mut a = set.variants[0].clone();
+    let mut default = Scenario::default();
+    // Names, descriptions and CI expectations differ; everything that decides the numbers agrees.
+    a.name = String::new();
+    a.description = String::new();
+    a.expect = Default::default();
+    default.name = String::new();
+    default.description = String::new();
+    default.expect = Default::default();
+    assert_eq!(a, default);
+}
