@@ -318,9 +318,11 @@ impl GaussianHmm {
         if !y.is_finite() {
             return Err(HmmError::NonFinite { index: 0, value: y });
         }
-        let consts = EmissionConsts::new(&self.means, &self.variances);
-        for (j, o) in out.iter_mut().enumerate() {
-            *o = consts.log_density(j, y);
+        // Per call, without the allocations of `EmissionConsts`: this is the tracker's per-frame
+        // path.
+        for ((o, m), v) in out.iter_mut().zip(&self.means).zip(&self.variances) {
+            let d2 = (y - m) * (y - m) / v;
+            *o = -0.5 * (LN_2PI + v.ln()) - 0.5 * d2.min(MAX_SQUARED_DISTANCE);
         }
         Ok(())
     }
