@@ -106,17 +106,18 @@ pub enum AssignmentRule {
 #[serde(default, deny_unknown_fields)]
 pub struct HmmSettings {
     /// Number of EM runs from different seeded k-means++ initialisations; the run with the best
-    /// final log-likelihood is kept. At least 1.
+    /// final log-likelihood is kept (restarts that k-means puts at an identical start run once).
+    /// At least 1; default 3.
     pub restarts: usize,
-    /// Cap on EM iterations per run. At least 1.
+    /// Cap on EM iterations per run. At least 1; default 200.
     pub max_iterations: usize,
     /// EM stops when one iteration raises the log-likelihood by less than `tolerance` per
-    /// observation. Finite, at least 0.
+    /// observation. Finite, at least 0; default 1e-4.
     pub tolerance: f64,
     /// Lower bound on every state variance, relative to the variance of the training data (when
-    /// the data is constant: relative to max(mean², 1)). Finite, in (0, 1].
+    /// the data is constant: relative to max(mean², 1)). Finite, in (0, 1]; default 1e-3.
     pub variance_floor: f64,
-    /// How training samples are attributed to states.
+    /// How training samples are attributed to states; default [`AssignmentRule::MaxLikelihood`].
     pub assignment: AssignmentRule,
 }
 
