@@ -5,12 +5,18 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 
 use evitrack::dataset::Dataset;
 use evitrack::evidence;
+use evitrack::evidence::Constructor;
+use evitrack::experiment::{self, RunSummary, Workbench};
 use evitrack::features::FeatureConfig;
+use evitrack::model::{EvidentialModel, ModelSettings, StateCounts, Tuning};
+use evitrack::report::{ErrorStats, Table};
+use evitrack::scenario::ScenarioSet;
 use evitrack::sim::{self, Motion, NoiseSettings, SimSettings};
+use evitrack::track::TrackSettings;
 
 /// Evidential (Dempster–Shafer) pose tracking on a simulated five-bar robot.
 #[derive(Debug, Parser)]
@@ -22,6 +28,9 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run a scenario end to end: simulate, train, track, report. Without a file it runs the
+    /// built-in default, the paper's dense Bayesian setup (Figure 2a).
+    Run(RunArgs),
     /// Combine belief functions given as JSON and print the result as JSON on stdout.
     ///
     /// Input: {"frame": N, "rule": "dempster"|"conjunctive", "mass_functions":
@@ -38,6 +47,12 @@ enum Command {
     /// Extract the features of every frame of a dataset into a CSV (one row per frame, one
     /// column per feature, plus the ground truth when the dataset has it).
     Features(FeaturesArgs),
+    /// Train an evidential model on a dataset of the sample trajectory: one HMM per feature,
+    /// its frame of discernment and its refining onto the sample poses.
+    Train(TrainArgs),
+    /// Track a dataset with a trained model: per-frame estimates to CSV, error summary when the
+    /// dataset has ground truth.
+    Track(TrackArgs),
 }
 
 #[derive(Debug, Args)]
@@ -105,6 +120,69 @@ struct FeaturesArgs {
     out: Option<PathBuf>,
 }
 
+#[derive(Debug, Args)]
+struct TrainArgs {
+    /// Dataset folder of the sample trajectory (it must have ground-truth poses).
+    dataset: PathBuf,
+    /// Output model file (JSON).
+    #[arg(long)]
+    out: PathBuf,
+    /// HMM state counts: one for every feature (`3`) or one per feature (`2,2,2,3,3,2`).
+    #[arg(long, default_value = "2,2,2,3,3,2")]
+    states: String,
+    /// Tune each feature's state count by BIC between these bounds (`2..5`) instead.
+    #[arg(long)]
+    tune_bic: Option<String>,
+    /// Feature configuration (TOML); default: the paper's 6 size functions.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Add the barycentre features to the default configuration.
+    #[arg(long, conflicts_with = "config")]
+    barycentre: bool,
+    /// Seed of the EM initialisations.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Debug, Args)]
+struct RunArgs {
+    /// Scenario file (TOML); default: the built-in paper setup (a). A file with a [sweep]
+    /// section runs its base scenario only (use `sweep` for the variants).
+    scenario: Option<PathBuf>,
+    /// Output folder; results go to <OUT>/<scenario name>/.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Override the scenario's master seed.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+#[derive(Debug, Args)]
+struct TrackArgs {
+    /// Dataset folder to track.
+    dataset: PathBuf,
+    /// Model file written by `train` (or by `run`).
+    #[arg(long)]
+    model: PathBuf,
+    /// Output CSV of per-frame estimates (default: estimates.csv beside nothing — standard
+    /// output).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Belief-function constructor.
+    #[arg(long, value_enum, default_value = "bayesian")]
+    constructor: ConstructorArg,
+    /// Conflict threshold: a number, `inf` (combine everything), or `model` (the threshold
+    /// learned into the model; `inf` when it has none).
+    #[arg(long, default_value = "model")]
+    threshold: String,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum ConstructorArg {
+    Bayesian,
+    Consonant,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match dispatch(cli.command) {
@@ -119,9 +197,12 @@ fn main() -> ExitCode {
 fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
         Command::Combine { file } => combine(&file),
+        Command::Run(args) => run(&args),
         Command::Simulate(args) => simulate(&args),
         Command::Render(args) => render(&args),
         Command::Features(args) => features(&args),
+        Command::Train(args) => train(&args),
+        Command::Track(args) => track_dataset(&args),
     }
 }
 
@@ -289,5 +370,330 @@ fn features(args: &FeaturesArgs) -> Result<ExitCode> {
             String::new()
         }
     );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn parse_counts(text: &str, what: &str) -> Result<StateCounts> {
+    let counts: Vec<usize> = text
+        .split(',')
+        .map(|c| c.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .with_context(|| {
+            format!("{what} `{text}` must be a count (`3`) or a list of counts (`2,2,2,3,3,2`)")
+        })?;
+    Ok(match counts.as_slice() {
+        [one] => StateCounts::All(*one),
+        _ => StateCounts::PerFeature(counts),
+    })
+}
+
+fn train(args: &TrainArgs) -> Result<ExitCode> {
+    let dataset = read_dataset(&args.dataset)?;
+    let poses = dataset.truth_positions().with_context(|| {
+        format!(
+            "{} has frames without ground-truth poses: training needs the pose of every sample",
+            args.dataset.display()
+        )
+    })?;
+    let config = feature_config(args.config.as_deref(), args.barycentre)?;
+    let set = config.check()?;
+    let bar = progress_bar("features");
+    bar.set_length(dataset.len() as u64);
+    let rows: Vec<Vec<Option<f64>>> = dataset
+        .frames
+        .iter()
+        .map(|frame| {
+            bar.inc(1);
+            set.extract(&frame.image)
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut settings = ModelSettings {
+        states: parse_counts(&args.states, "--states")?,
+        seed: args.seed,
+        ..ModelSettings::default()
+    };
+    if let Some(bounds) = &args.tune_bic {
+        let (low, high) = bounds
+            .split_once("..")
+            .with_context(|| format!("--tune-bic `{bounds}` must look like `2..5`"))?;
+        settings.tuning = Tuning::Bic {
+            min_states: parse_counts(low, "--tune-bic lower bound")?,
+            max_states: parse_counts(high, "--tune-bic upper bound")?,
+        };
+    }
+    let mut model = EvidentialModel::train(&poses, &set.names(), &rows, &settings)?;
+    model.set_feature_config(Some(config));
+    model
+        .save(&args.out)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let mut table = Table::new([
+        "feature",
+        "states",
+        "asked",
+        "log-likelihood",
+        "BIC",
+        "block sizes",
+        "notes",
+    ]);
+    for summary in model.summary() {
+        let mut notes = Vec::new();
+        if !summary.removed_states.is_empty() {
+            notes.push(format!("removed states {:?}", summary.removed_states));
+        }
+        if summary.imputed > 0 {
+            notes.push(format!("{} missing values imputed", summary.imputed));
+        }
+        table.push([
+            summary.name.clone(),
+            summary.states.to_string(),
+            summary.requested_states.to_string(),
+            format!("{:.3}", summary.log_likelihood),
+            format!("{:.3}", summary.bic),
+            format!("{:?}", summary.block_sizes),
+            notes.join("; "),
+        ]);
+    }
+    println!("{table}");
+    eprintln!(
+        "trained on {} sample poses; model written to {}",
+        poses.len(),
+        args.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn load_scenarios(path: Option<&Path>) -> Result<ScenarioSet> {
+    match path {
+        Some(path) => Ok(ScenarioSet::load(path)?),
+        None => Ok(ScenarioSet::builtin_default()),
+    }
+}
+
+fn fmt_mm(value: Option<f64>) -> String {
+    value
+        .map(|v| format!("{v:.4}"))
+        .unwrap_or_else(|| "—".into())
+}
+
+fn error_table(summaries: &[&RunSummary]) -> Table {
+    let mut table = Table::new([
+        "scenario",
+        "samples",
+        "states",
+        "constructor",
+        "mean",
+        "median",
+        "RMS",
+        "max",
+        "paper",
+        "no est.",
+        "flagged",
+    ]);
+    for s in summaries {
+        let states: Vec<String> = s.states.iter().map(usize::to_string).collect();
+        table.push([
+            s.scenario.clone(),
+            s.samples.to_string(),
+            states.join(","),
+            s.constructor.clone(),
+            fmt_mm(s.error.map(|e| e.mean)),
+            fmt_mm(s.error.map(|e| e.median)),
+            fmt_mm(s.error.map(|e| e.rms)),
+            fmt_mm(s.error.map(|e| e.max)),
+            fmt_mm(s.paper_error),
+            format!("{}/{}", s.frames_without_estimate, s.frames),
+            s.frames_flagged.to_string(),
+        ]);
+    }
+    table
+}
+
+/// Progress bars for the stages of runs, one line per variant.
+struct StageBars {
+    multi: MultiProgress,
+    bars: Vec<ProgressBar>,
+}
+
+impl StageBars {
+    fn new(names: &[String]) -> Self {
+        let multi = MultiProgress::new();
+        let style = ProgressStyle::with_template("{prefix:>24} {msg:>14} [{bar:30}] {pos}/{len}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> ");
+        let bars = names
+            .iter()
+            .map(|name| {
+                let bar = multi.add(ProgressBar::new(0));
+                bar.set_style(style.clone());
+                bar.set_prefix(name.clone());
+                bar
+            })
+            .collect();
+        Self { multi, bars }
+    }
+
+    fn update(&self, variant: usize, stage: &str, done: usize, total: usize) {
+        if let Some(bar) = self.bars.get(variant) {
+            if bar.message() != stage {
+                bar.set_message(stage.to_string());
+            }
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+    }
+
+    fn finish(&self) {
+        for bar in &self.bars {
+            bar.finish_and_clear();
+        }
+        let _ = self.multi.clear();
+    }
+}
+
+fn run(args: &RunArgs) -> Result<ExitCode> {
+    let set = load_scenarios(args.scenario.as_deref())?;
+    let mut scenario = set.base;
+    if let Some(seed) = args.seed {
+        scenario.seed = seed;
+    }
+    let bench = Workbench::new();
+    let bars = StageBars::new(std::slice::from_ref(&scenario.name));
+    let output = experiment::run(&scenario, &bench, &mut |stage, done, total| {
+        bars.update(0, stage, done, total)
+    });
+    bars.finish();
+    let output = output.with_context(|| format!("running scenario `{}`", scenario.name))?;
+    let dir = args.out.join(&scenario.name);
+    let written = experiment::write_run(&dir, &output)?;
+    println!("{}", error_table(&[&output.summary]));
+    for (label, stats) in &output.summary.per_motion {
+        if output.summary.per_motion.len() > 1 {
+            println!("  {label}: mean {}", fmt_mm(stats.map(|s| s.mean)));
+        }
+    }
+    eprintln!(
+        "errors in mm; wrote {} files to {}",
+        written.len(),
+        dir.display()
+    );
+    let missed = output.summary.regressions();
+    for line in &missed {
+        eprintln!("regression: {line}");
+    }
+    Ok(if missed.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+fn track_dataset(args: &TrackArgs) -> Result<ExitCode> {
+    let model = EvidentialModel::load(&args.model)
+        .with_context(|| format!("loading the model {}", args.model.display()))?;
+    let config = model.feature_config().cloned().with_context(|| {
+        format!(
+            "{} records no feature configuration, so its features cannot be extracted here",
+            args.model.display()
+        )
+    })?;
+    let set = config.check()?;
+    let names = set.names();
+    let model_names: Vec<String> = model
+        .feature_names()
+        .iter()
+        .map(|n| n.to_string())
+        .collect();
+    if names != model_names {
+        bail!(
+            "the model's features {model_names:?} do not match its configuration's {names:?}: \
+             the model file was edited or is corrupted"
+        );
+    }
+    let mut settings = TrackSettings {
+        constructor: match args.constructor {
+            ConstructorArg::Bayesian => Constructor::Bayesian,
+            ConstructorArg::Consonant => Constructor::Consonant,
+        },
+        ..TrackSettings::default()
+    };
+    settings.conflict_threshold = match args.threshold.as_str() {
+        "model" => model.conflict_threshold().unwrap_or(f64::INFINITY),
+        "inf" => f64::INFINITY,
+        text => text
+            .parse::<f64>()
+            .ok()
+            .filter(|t| *t >= 0.0)
+            .with_context(|| {
+                format!("--threshold `{text}` must be a number ≥ 0, `inf` or `model`")
+            })?,
+    };
+    let tracker = experiment::tracker_for(&model, &settings)?;
+    let dataset = read_dataset(&args.dataset)?;
+    let bar = progress_bar("track");
+    bar.set_length(dataset.len() as u64);
+    let sink: Box<dyn std::io::Write> = match &args.out {
+        Some(path) => Box::new(
+            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+        ),
+        None => Box::new(std::io::stdout().lock()),
+    };
+    let mut csv = csv::Writer::from_writer(sink);
+    csv.write_record([
+        "file",
+        "t",
+        "est_x",
+        "est_y",
+        "true_x",
+        "true_y",
+        "error",
+        "group",
+        "conflict_level",
+        "uncertainty_radius",
+        "flags",
+    ])?;
+    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
+    let (mut errors, mut flagged, mut without) = (Vec::new(), 0usize, 0usize);
+    for frame in &dataset.frames {
+        let values = set.extract(&frame.image);
+        let likelihoods = model.likelihoods(&values)?;
+        let estimate = tracker.track(&likelihoods)?;
+        let truth = frame.truth.map(|t| [t.x, t.y]);
+        let error = estimate
+            .estimate
+            .zip(truth)
+            .map(|(e, t)| evitrack::report::distance(e, t));
+        errors.extend(error);
+        let flags = experiment::frame_flags(&estimate, &names);
+        flagged += usize::from(!flags.is_empty());
+        without += usize::from(estimate.estimate.is_none());
+        let group: Vec<&str> = estimate.group.iter().map(|&i| names[i].as_str()).collect();
+        csv.write_record([
+            frame.file.clone(),
+            frame.t.to_string(),
+            num(estimate.estimate.map(|p| p[0])),
+            num(estimate.estimate.map(|p| p[1])),
+            num(truth.map(|p| p[0])),
+            num(truth.map(|p| p[1])),
+            num(error),
+            group.join("+"),
+            num(estimate.conflict_level),
+            num(estimate.uncertainty.map(|u| u.radius)),
+            flags,
+        ])?;
+        bar.inc(1);
+    }
+    csv.flush()?;
+    bar.finish_and_clear();
+    match ErrorStats::from_errors(&errors) {
+        Some(stats) => eprintln!(
+            "{} frames: error mean {:.4} mm, median {:.4}, RMS {:.4}, max {:.4}; {} flagged, {} without estimate",
+            dataset.len(), stats.mean, stats.median, stats.rms, stats.max, flagged, without
+        ),
+        None => eprintln!(
+            "{} frames tracked ({} flagged, {} without estimate); no ground truth, so no errors",
+            dataset.len(), flagged, without
+        ),
+    }
     Ok(ExitCode::SUCCESS)
 }

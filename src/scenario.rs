@@ -1,1 +1,398 @@
-//! (to be written)
+//! Scenario files: TOML in, validated settings out.
+//!
+//! A scenario names everything a run needs — robot and camera, sample trajectory, validation and
+//! test motions, features, model, tracker, seed — and what it is expected to achieve. A `[sweep]`
+//! section turns one file into several *variants*: each variant is the base scenario with some
+//! values replaced, addressed by dotted paths (`"model.states" = [2, 3, 3, 3, 3, 2]`). Variants are
+//! listed (`[[sweep.variant]]`) or spanned by a grid (`[sweep.grid]`, the cartesian product of the
+//! listed values). Every variant is deserialised and checked before anything runs.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::adaptive::AdaptiveSettings;
+use crate::features::FeatureConfig;
+use crate::model::{ModelSettings, StateCounts};
+use crate::sim::{Motion, SimSettings};
+use crate::track::TrackSettings;
+
+/// Failures while reading or checking a scenario.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ScenarioError {
+    /// The file could not be read.
+    #[error("cannot read scenario {path}: {source}")]
+    Read {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The TOML is malformed or has unknown or mistyped fields (the message has line and column).
+    #[error("scenario {path} is not valid:\n{message}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// The parser's message, with line, column and a snippet.
+        message: String,
+    },
+    /// A sweep variant's replacements do not make a valid scenario.
+    #[error("sweep variant `{variant}` of {path} is not valid: {message}")]
+    Variant {
+        /// The file.
+        path: String,
+        /// The variant's name.
+        variant: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A value is out of range or inconsistent.
+    #[error("scenario `{scenario}`: {message}")]
+    Invalid {
+        /// The scenario (or variant) name.
+        scenario: String,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+}
+
+/// How the sample trajectory is obtained.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SampleSettings {
+    /// The motion the robot follows while the sample frames are taken.
+    pub motion: Motion,
+    /// Keep every k-th sample of that trajectory (1 keeps all): the paper's sparser trajectory
+    /// "obtained by sampling" the dense one.
+    pub keep_every: usize,
+    /// Refine the trajectory where features change fast (§3.1); off when absent.
+    pub adaptive: Option<AdaptiveSettings>,
+}
+
+impl Default for SampleSettings {
+    fn default() -> Self {
+        Self {
+            motion: Motion::Mesh { spacing: 1.0 },
+            keep_every: 1,
+            adaptive: None,
+        }
+    }
+}
+
+/// What a run is expected to achieve; `sweep --check` fails when a variant misses it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Expectations {
+    /// Largest acceptable mean estimation error over all test frames, in mm.
+    pub max_mean_error: Option<f64>,
+    /// Largest acceptable share of test frames without an estimate (0 to 1).
+    pub max_missing_share: Option<f64>,
+}
+
+/// One runnable scenario (a file's base, or one of its sweep variants).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Scenario {
+    /// Name used for output folders and tables.
+    pub name: String,
+    /// Free text.
+    pub description: String,
+    /// Master seed: every random draw of the run derives from it.
+    pub seed: u64,
+    /// Robot geometry, camera and noise.
+    pub sim: SimSettings,
+    /// The sample trajectory.
+    pub sample: SampleSettings,
+    /// Validation motion: used to learn the conflict threshold and per-feature errors.
+    pub validation: Option<Motion>,
+    /// Test motions: the reported errors are measured on them.
+    pub tests: Vec<Motion>,
+    /// Which features, with which parameters.
+    pub features: FeatureConfig,
+    /// HMM state counts and training settings.
+    pub model: ModelSettings,
+    /// Constructor, selection policy, conflict threshold, estimator.
+    pub track: TrackSettings,
+    /// Learn the conflict threshold on the validation motion (§4.3) instead of using
+    /// `track.conflict_threshold`.
+    pub learn_threshold: bool,
+    /// Regression expectations.
+    pub expect: Expectations,
+    /// The paper's figure for this setup, printed beside ours.
+    pub paper_error: Option<f64>,
+    /// Variants of this scenario (empty in the variants themselves).
+    pub sweep: Sweep,
+}
+
+impl Default for Scenario {
+    /// The paper's dense Bayesian setup, Figure 2(a).
+    fn default() -> Self {
+        Self {
+            name: "default".into(),
+            description: "The paper's dense Bayesian setup (Figure 2a): 1 mm mesh, 6 size \
+                          functions, n = 2,2,2,3,3,2"
+                .into(),
+            seed: 1,
+            sim: SimSettings::default(),
+            sample: SampleSettings::default(),
+            validation: Some(default_validation_motion()),
+            tests: vec![default_test_motion()],
+            features: FeatureConfig::default(),
+            model: ModelSettings {
+                states: StateCounts::PerFeature(vec![2, 2, 2, 3, 3, 2]),
+                ..ModelSettings::default()
+            },
+            track: TrackSettings::default(),
+            learn_threshold: false,
+            expect: Expectations::default(),
+            paper_error: Some(2.3585),
+            sweep: Sweep::default(),
+        }
+    }
+}
+
+/// The default validation motion: a seeded smooth random path, 10 s at 10 frames/s.
+pub fn default_validation_motion() -> Motion {
+    Motion::RandomPath {
+        seed: 11,
+        speed: 8.0,
+        duration: 10.0,
+        fps: 10.0,
+        components: 4,
+    }
+}
+
+/// The default test motion: a Lissajous figure over the workspace, 10 s at 20 frames/s.
+pub fn default_test_motion() -> Motion {
+    Motion::Lissajous {
+        freq_x: 0.3,
+        freq_y: 0.2,
+        phase: std::f64::consts::FRAC_PI_2,
+        amplitude: 0.9,
+        duration: 10.0,
+        fps: 20.0,
+    }
+}
+
+impl Scenario {
+    /// Checks the values that deserialisation cannot: ranges, consistency between sections.
+    pub fn check(&self) -> Result<(), ScenarioError> {
+        let invalid = |message: String| ScenarioError::Invalid {
+            scenario: self.name.clone(),
+            message,
+        };
+        if self.name.trim().is_empty() {
+            return Err(invalid("`name` is empty: give the scenario a name".into()));
+        }
+        if self
+            .name
+            .chars()
+            .any(|c| !(c.is_ascii_alphanumeric() || "-_.=,".contains(c)))
+        {
+            return Err(invalid(format!(
+                "name `{}` may only hold letters, digits and - _ . = , (it names an output folder)",
+                self.name
+            )));
+        }
+        if self.sample.keep_every == 0 {
+            return Err(invalid("`sample.keep_every` must be at least 1".into()));
+        }
+        if self.tests.is_empty() {
+            return Err(invalid(
+                "no test motion: add at least one [[tests]] table".into(),
+            ));
+        }
+        if self.learn_threshold && self.validation.is_none() {
+            return Err(invalid(
+                "`learn_threshold = true` needs a [validation] motion to learn it on".into(),
+            ));
+        }
+        if let Some(limit) = self.expect.max_mean_error {
+            if !(limit.is_finite() && limit > 0.0) {
+                return Err(invalid(format!(
+                    "`expect.max_mean_error` must be a positive number of mm, not {limit}"
+                )));
+            }
+        }
+        if let Some(share) = self.expect.max_missing_share {
+            if !(0.0..=1.0).contains(&share) {
+                return Err(invalid(format!(
+                    "`expect.max_missing_share` must lie in [0, 1], not {share}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The `[sweep]` section: variants of the base scenario.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Sweep {
+    /// Listed variants (`[[sweep.variant]]`).
+    pub variant: Vec<VariantSpec>,
+    /// Dotted path → values; the variants are their cartesian product (`[sweep.grid]`).
+    pub grid: BTreeMap<String, Vec<toml::Value>>,
+}
+
+/// One listed variant: a name and the values it replaces.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VariantSpec {
+    /// Appended to the scenario's name.
+    pub name: String,
+    /// Dotted path → replacement value, e.g. `"model.states" = [2, 3, 3, 3, 3, 2]`.
+    #[serde(default)]
+    pub set: BTreeMap<String, toml::Value>,
+}
+
+/// A scenario file: the base scenario and the variants its sweep section spans.
+#[derive(Debug, Clone)]
+pub struct ScenarioSet {
+    /// Where it came from (a path, or `built-in`).
+    pub source: String,
+    /// The base scenario.
+    pub base: Scenario,
+    /// The variants, in file order (listed first, then the grid); a file without a sweep section
+    /// has one variant, the base itself.
+    pub variants: Vec<Scenario>,
+}
+
+impl ScenarioSet {
+    /// The built-in default: the paper's dense Bayesian setup, run once.
+    pub fn builtin_default() -> Self {
+        let base = Scenario::default();
+        Self {
+            source: "built-in".into(),
+            variants: vec![base.clone()],
+            base,
+        }
+    }
+
+    /// Reads and checks a scenario file.
+    pub fn load(path: &Path) -> Result<Self, ScenarioError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and checks scenario text; `source` names it in errors.
+    pub fn parse(text: &str, source: &str) -> Result<Self, ScenarioError> {
+        let parse_error = |message: String| ScenarioError::Parse {
+            path: source.to_string(),
+            message,
+        };
+        // Deserialise from the text itself so unknown fields are reported with line and column.
+        let mut base: Scenario = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        base.check()?;
+        let sweep = std::mem::take(&mut base.sweep);
+        let mut table: toml::Table =
+            toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        table.remove("sweep");
+        let mut specs = sweep.variant.clone();
+        specs.extend(grid_variants(&sweep.grid));
+        let variants = if specs.is_empty() {
+            vec![base.clone()]
+        } else {
+            let mut seen = std::collections::HashSet::new();
+            specs
+                .iter()
+                .map(|spec| {
+                    let variant_error = |message: String| ScenarioError::Variant {
+                        path: source.to_string(),
+                        variant: spec.name.clone(),
+                        message,
+                    };
+                    if !seen.insert(spec.name.clone()) {
+                        return Err(variant_error("two variants have this name".into()));
+                    }
+                    let mut value = toml::Value::Table(table.clone());
+                    for (path, replacement) in &spec.set {
+                        set_path(&mut value, path, replacement.clone()).map_err(variant_error)?;
+                    }
+                    let mut scenario: Scenario = value
+                        .try_into()
+                        .map_err(|e: toml::de::Error| variant_error(e.to_string()))?;
+                    scenario.name = format!("{}-{}", base.name, spec.name);
+                    scenario.check()?;
+                    Ok(scenario)
+                })
+                .collect::<Result<Vec<_>, _>>()?
+        };
+        Ok(Self {
+            source: source.to_string(),
+            base,
+            variants,
+        })
+    }
+}
+
+/// The cartesian product of a grid, each point a variant named `key=value,...`.
+fn grid_variants(grid: &BTreeMap<String, Vec<toml::Value>>) -> Vec<VariantSpec> {
+    if grid.is_empty() {
+        return Vec::new();
+    }
+    let mut points: Vec<VariantSpec> = vec![VariantSpec {
+        name: String::new(),
+        set: BTreeMap::new(),
+    }];
+    for (path, values) in grid {
+        let short = path.rsplit('.').next().unwrap_or(path);
+        points = points
+            .into_iter()
+            .flat_map(|point| {
+                values.iter().map(move |value| {
+                    let mut next = point.clone();
+                    let label = format!("{short}={}", compact(value));
+                    next.name = if next.name.is_empty() {
+                        label
+                    } else {
+                        format!("{},{label}", next.name)
+                    };
+                    next.set.insert(path.clone(), value.clone());
+                    next
+                })
+            })
+            .collect();
+    }
+    points
+}
+
+/// A value as a short label for variant names (arrays joined with `_`).
+fn compact(value: &toml::Value) -> String {
+    match value {
+        toml::Value::String(s) => s.clone(),
+        toml::Value::Array(items) => items.iter().map(compact).collect::<Vec<_>>().join("_"),
+        toml::Value::Table(_) => "table".into(),
+        other => other.to_string(),
+    }
+}
+
+/// Replaces the value at a dotted path, creating missing tables along the way.
+fn set_path(root: &mut toml::Value, path: &str, value: toml::Value) -> Result<(), String> {
+    let keys: Vec<&str> = path.split('.').collect();
+    if keys.iter().any(|k| k.is_empty()) {
+        return Err(format!("`{path}` is not a dotted path like `model.states`"));
+    }
+    let mut node = root;
+    for (depth, key) in keys.iter().enumerate() {
+        let toml::Value::Table(table) = node else {
+            return Err(format!(
+                "`{}` is not a table, so `{path}` cannot be set",
+                keys[..depth].join(".")
+            ));
+        };
+        if depth + 1 == keys.len() {
+            table.insert((*key).to_string(), value);
+            return Ok(());
+        }
+        node = table
+            .entry((*key).to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    }
+    Ok(())
+}

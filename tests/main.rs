@@ -9,3 +9,4 @@ mod hmm;
 mod model;
 mod pipeline;
 mod sim;
+mod track;

@@ -423,6 +423,18 @@ pub fn dempster_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
     })
 }
 
+/// Level of conflict K of Dempster's combination of any number of functions, without building the
+/// combined function (cheaper than [`dempster_all`] when only K is needed); +∞ on total conflict.
+///
+/// # Errors
+/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`].
+pub fn conflict_level_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
+    fs: I,
+) -> Result<f64, EvidenceError> {
+    let (n, fs) = frame_of(fs)?;
+    Ok(run(n, &fs, true, |out| out.level).unwrap_or(f64::INFINITY))
+}
+
 /// Conflict mass κ between two functions, without building their combination.
 ///
 /// # Errors
@@ -591,6 +603,7 @@ mod tests {
             let (unnorm, kappa) = reference(&refs);
             let c = dempster_all(&fs).unwrap();
             prop_assert!((c.conflict_mass - kappa).abs() < 1e-12);
+            prop_assert_eq!(conflict_level_all(&fs).unwrap(), c.conflict_level);
             prop_assert!(!c.conflict_level.is_nan());
             match &c.mass {
                 None => prop_assert!(unnorm.is_empty()),

@@ -14,8 +14,8 @@ mod refining;
 mod subset;
 
 pub use combine::{
-    conflict, conjunctive, conjunctive_all, contour_product, dempster, dempster_all,
-    level_of_conflict, Combination, Rule,
+    conflict, conflict_level_all, conjunctive, conjunctive_all, contour_product, dempster,
+    dempster_all, level_of_conflict, Combination, Rule,
 };
 pub use construct::{from_likelihoods, Constructor, LikelihoodIssue, Measurement};
 pub use decision::{pignistic, pointwise_estimate, relative_plausibility};

@@ -23,6 +23,7 @@ mod persist;
 pub use persist::FORMAT_VERSION;
 
 use crate::evidence::{EvidenceError, Refining};
+use crate::features::FeatureConfig;
 use crate::hmm::{AssignmentRule, GaussianHmm, HmmError, HmmSettings};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -644,6 +645,7 @@ pub struct EvidentialModel {
     features: Vec<FeatureModel>,
     conflict_threshold: Option<f64>,
     validation_errors: Option<Vec<f64>>,
+    feature_config: Option<FeatureConfig>,
 }
 
 impl EvidentialModel {
@@ -767,6 +769,7 @@ impl EvidentialModel {
             features: models,
             conflict_threshold: None,
             validation_errors: None,
+            feature_config: None,
         })
     }
 
@@ -795,6 +798,7 @@ impl EvidentialModel {
             features,
             conflict_threshold: None,
             validation_errors: None,
+            feature_config: None,
         })
     }
 
@@ -879,6 +883,17 @@ impl EvidentialModel {
         }
         self.validation_errors = errors;
         Ok(())
+    }
+
+    /// The feature configuration the model was trained with, when recorded: `track` extracts
+    /// the same features with it.
+    pub fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.feature_config.as_ref()
+    }
+
+    /// Records the feature configuration the model was trained with.
+    pub fn set_feature_config(&mut self, config: Option<FeatureConfig>) {
+        self.feature_config = config;
     }
 }
 

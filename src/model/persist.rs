@@ -3,11 +3,12 @@
 //! Layout (version 1): `format_version`, `sample_poses` ([x, y] per sample), `features` (per
 //! feature: `name`, `requested_states`, `hmm` (initial, transitions, means, variances),
 //! `log_likelihood`, `n_observations`, `states` (HMM state of every sample pose),
-//! `removed_states`, `imputed`), `conflict_threshold` (number or null) and `validation_errors`
-//! (one per feature, or null). The frame of a feature is its HMM states minus the removed ones;
+//! `removed_states`, `imputed`), `conflict_threshold` (number or null), `validation_errors`
+//! (one per feature, or null) and `feature_config` (the features' settings, or null). The frame of a feature is its HMM states minus the removed ones;
 //! on load the refinings are rebuilt from `states` and checked.
 
 use super::{check_poses, check_validation_errors, EvidentialModel, FeatureModel, ModelError};
+use crate::features::FeatureConfig;
 use crate::hmm::GaussianHmm;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -23,6 +24,10 @@ struct ModelFile {
     features: Vec<FeatureRecord>,
     conflict_threshold: Option<f64>,
     validation_errors: Option<Vec<f64>>,
+    /// The feature configuration the model was trained with (optional: models trained on
+    /// features computed elsewhere have none).
+    #[serde(default)]
+    feature_config: Option<FeatureConfig>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -60,6 +65,7 @@ impl EvidentialModel {
                 .collect(),
             conflict_threshold: self.conflict_threshold,
             validation_errors: self.validation_errors.clone(),
+            feature_config: self.feature_config.clone(),
         };
         serde_json::to_string_pretty(&file)
             .map_err(|e| ModelError::Corrupted(format!("cannot serialise the model: {e}")))
@@ -157,6 +163,7 @@ impl EvidentialModel {
             features,
             conflict_threshold: file.conflict_threshold,
             validation_errors: file.validation_errors,
+            feature_config: file.feature_config,
         })
     }
 

@@ -1,0 +1,185 @@
+//! What the tracker needs to know: sample poses and, per feature, the refining of its frame onto
+//! the sample poses. Plain data, so any trainer (the HMM-based model, a test) can build it.
+
+use serde::{Deserialize, Serialize};
+
+use super::TrackError;
+use crate::evidence::Refining;
+
+/// Largest number of features a tracker accepts (groups are bit masks and compatible groups are
+/// enumerated exhaustively, which stays cheap up to here).
+pub const MAX_FEATURES: usize = 16;
+
+/// One feature of the model: its refining Θᵢ → Q̃ and, optionally, its validation error (mm), used
+/// to pick the fallback feature.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeatureModel {
+    /// Refining from the feature's frame onto the sample poses.
+    pub refining: Refining,
+    /// Mean estimation error of this feature alone on a validation motion, if known.
+    pub validation_error: Option<f64>,
+}
+
+/// A feature as stored on disk: the state of every sample pose.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawFeatureModel {
+    /// Number of states |Θᵢ|.
+    pub states: usize,
+    /// State of every sample pose.
+    pub assignment: Vec<usize>,
+    /// Validation error, if known.
+    #[serde(default)]
+    pub validation_error: Option<f64>,
+}
+
+/// The evidential model the tracker runs on: sample poses Q̃ (mm) and one refining per feature.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerModel {
+    poses: Vec<[f64; 2]>,
+    features: Vec<FeatureModel>,
+}
+
+impl TrackerModel {
+    /// Validate and build.
+    ///
+    /// # Errors
+    /// [`TrackError::NoPoses`], [`TrackError::BadPose`], [`TrackError::FeatureCount`],
+    /// [`TrackError::FeatureFrame`] (a refining whose fine frame is not the sample poses),
+    /// [`TrackError::BadValidationError`].
+    pub fn new(poses: Vec<[f64; 2]>, features: Vec<FeatureModel>) -> Result<Self, TrackError> {
+        if poses.is_empty() {
+            return Err(TrackError::NoPoses);
+        }
+        if let Some((i, p)) = poses
+            .iter()
+            .enumerate()
+            .find(|(_, p)| !p.iter().all(|x| x.is_finite()))
+        {
+            return Err(TrackError::BadPose { index: i, pose: *p });
+        }
+        if features.is_empty() || features.len() > MAX_FEATURES {
+            return Err(TrackError::FeatureCount {
+                found: features.len(),
+                max: MAX_FEATURES,
+            });
+        }
+        for (i, f) in features.iter().enumerate() {
+            if f.refining.fine_size() != poses.len() {
+                return Err(TrackError::FeatureFrame {
+                    feature: i,
+                    found: f.refining.fine_size(),
+                    poses: poses.len(),
+                });
+            }
+            if let Some(e) = f.validation_error {
+                if !e.is_finite() || e < 0.0 {
+                    return Err(TrackError::BadValidationError {
+                        feature: i,
+                        value: e,
+                    });
+                }
+            }
+        }
+        Ok(TrackerModel { poses, features })
+    }
+
+    /// Build from raw per-feature state assignments.
+    ///
+    /// # Errors
+    /// As [`TrackerModel::new`], plus [`TrackError::Evidence`] (naming the feature) for an
+    /// assignment that is not a valid refining.
+    pub fn from_raw(poses: Vec<[f64; 2]>, raw: &[RawFeatureModel]) -> Result<Self, TrackError> {
+        let mut features = Vec::with_capacity(raw.len());
+        for (i, r) in raw.iter().enumerate() {
+            let refining =
+                Refining::from_assignment(r.states, &r.assignment).map_err(|source| {
+                    TrackError::Evidence {
+                        feature: Some(i),
+                        source,
+                    }
+                })?;
+            features.push(FeatureModel {
+                refining,
+                validation_error: r.validation_error,
+            });
+        }
+        Self::new(poses, features)
+    }
+
+    /// The sample poses.
+    pub fn poses(&self) -> &[[f64; 2]] {
+        &self.poses
+    }
+
+    /// The features.
+    pub fn features(&self) -> &[FeatureModel] {
+        &self.features
+    }
+
+    /// Raw form for saving (see [`TrackerModel::from_raw`]).
+    pub fn to_raw(&self) -> Vec<RawFeatureModel> {
+        self.features
+            .iter()
+            .map(|f| RawFeatureModel {
+                states: f.refining.coarse_size(),
+                assignment: f.refining.assignment().to_vec(),
+                validation_error: f.validation_error,
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validation_names_the_fault() {
+        let r = Refining::from_assignment(2, &[0, 1, 1]).unwrap();
+        let f = |e| FeatureModel {
+            refining: r.clone(),
+            validation_error: e,
+        };
+        let poses = vec![[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]];
+        assert!(TrackerModel::new(poses.clone(), vec![f(None), f(Some(0.5))]).is_ok());
+        assert_eq!(
+            TrackerModel::new(vec![], vec![f(None)]),
+            Err(TrackError::NoPoses)
+        );
+        assert!(matches!(
+            TrackerModel::new(vec![[0.0, f64::NAN], [1.0, 0.0], [2.0, 0.0]], vec![f(None)]),
+            Err(TrackError::BadPose { index: 0, .. })
+        ));
+        assert!(matches!(
+            TrackerModel::new(poses.clone(), vec![]),
+            Err(TrackError::FeatureCount { .. })
+        ));
+        assert!(matches!(
+            TrackerModel::new(poses.clone(), vec![f(None); MAX_FEATURES + 1]),
+            Err(TrackError::FeatureCount { .. })
+        ));
+        assert!(matches!(
+            TrackerModel::new(poses[..2].to_vec(), vec![f(None)]),
+            Err(TrackError::FeatureFrame { feature: 0, .. })
+        ));
+        assert!(matches!(
+            TrackerModel::new(poses.clone(), vec![f(None), f(Some(-1.0))]),
+            Err(TrackError::BadValidationError { feature: 1, .. })
+        ));
+        let raw = vec![RawFeatureModel {
+            states: 3,
+            assignment: vec![0, 1, 1],
+            validation_error: None,
+        }];
+        assert!(matches!(
+            TrackerModel::from_raw(poses.clone(), &raw),
+            Err(TrackError::Evidence {
+                feature: Some(0),
+                ..
+            })
+        ));
+        let m = TrackerModel::new(poses.clone(), vec![f(Some(0.5))]).unwrap();
+        assert_eq!(TrackerModel::from_raw(poses, &m.to_raw()).unwrap(), m);
+    }
+}

@@ -1,0 +1,243 @@
+//! Tracker settings: raw (serde, `Default`) → [`TrackSettings::check`] → [`CheckedTrackSettings`].
+
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+use super::TrackError;
+use crate::evidence::{ConflictLevel, Constructor};
+
+/// How the group of features to combine is chosen among the compatible groups (§4.2).
+///
+/// A *combinable group* is a set of usable features that is complete in the conflict graph and
+/// whose own level of conflict is finite.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(try_from = "RawPolicy", into = "RawPolicy")]
+pub enum SelectionPolicy {
+    /// The largest combinable group; ties go to the lower level of conflict, then to the
+    /// lexicographically smallest list of feature indices.
+    #[default]
+    LargestSubset,
+    /// The combinable group of at least `min_size` features with the lowest level of conflict;
+    /// ties (within 1e-12) go to the larger group, then to the lexicographically smallest list.
+    LowestConflict {
+        /// Smallest group size considered.
+        min_size: usize,
+    },
+    /// Every maximal combinable group of at least `min_size` features gives its own estimate
+    /// (listed as alternatives by decreasing size, then increasing conflict, then feature list);
+    /// the first alternative is the estimate (so the pick follows the largest-subset rule).
+    Splitting {
+        /// Smallest group size considered.
+        min_size: usize,
+    },
+}
+
+/// Serde form of [`SelectionPolicy`]: `{ policy = "...", min_size = n }` (flat, so that unknown
+/// fields and a `min_size` on the largest-subset policy are errors).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPolicy {
+    policy: PolicyName,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    min_size: Option<usize>,
+}
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum PolicyName {
+    LargestSubset,
+    LowestConflict,
+    Splitting,
+}
+
+impl TryFrom<RawPolicy> for SelectionPolicy {
+    type Error = String;
+    fn try_from(raw: RawPolicy) -> Result<Self, String> {
+        match (raw.policy, raw.min_size) {
+            (PolicyName::LargestSubset, None) => Ok(SelectionPolicy::LargestSubset),
+            (PolicyName::LargestSubset, Some(_)) => {
+                Err("policy `largest_subset` takes no `min_size`".into())
+            }
+            (PolicyName::LowestConflict, Some(min_size)) => {
+                Ok(SelectionPolicy::LowestConflict { min_size })
+            }
+            (PolicyName::Splitting, Some(min_size)) => Ok(SelectionPolicy::Splitting { min_size }),
+            (_, None) => Err("policies `lowest_conflict` and `splitting` need `min_size`".into()),
+        }
+    }
+}
+
+impl From<SelectionPolicy> for RawPolicy {
+    fn from(p: SelectionPolicy) -> Self {
+        let (policy, min_size) = match p {
+            SelectionPolicy::LargestSubset => (PolicyName::LargestSubset, None),
+            SelectionPolicy::LowestConflict { min_size } => {
+                (PolicyName::LowestConflict, Some(min_size))
+            }
+            SelectionPolicy::Splitting { min_size } => (PolicyName::Splitting, Some(min_size)),
+        };
+        RawPolicy { policy, min_size }
+    }
+}
+
+impl SelectionPolicy {
+    /// Smallest eligible group size (1 for the largest-subset policy).
+    pub fn min_size(self) -> usize {
+        match self {
+            SelectionPolicy::LargestSubset => 1,
+            SelectionPolicy::LowestConflict { min_size }
+            | SelectionPolicy::Splitting { min_size } => min_size,
+        }
+    }
+}
+
+/// How the pose estimate is read off the combined belief function (§4.4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Estimator {
+    /// Σ p(q) q with p the relative plausibility of the sample poses (the paper's estimate).
+    #[default]
+    WeightedMean,
+    /// The sample pose of highest relative plausibility (ties: lowest sample index).
+    Map,
+    /// Σ BetP(q) q with BetP the pignistic probability of the combined function.
+    Pignistic,
+}
+
+/// Raw tracker settings, as read from a scenario or model file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackSettings {
+    /// Measurement function constructor (§3.6).
+    pub constructor: Constructor,
+    /// Conflict threshold: features i, j are compatible when K_ij is finite and K_ij ≤ threshold.
+    /// `"inf"` (the default) makes every pair with finite conflict compatible.
+    #[serde(serialize_with = "ser_level", deserialize_with = "de_level")]
+    pub conflict_threshold: f64,
+    /// Group selection policy.
+    pub selection: SelectionPolicy,
+    /// Pose estimator.
+    pub estimator: Estimator,
+    /// Share of the relative plausibility the reported uncertainty radius must hold, in (0, 1].
+    pub uncertainty_mass: f64,
+}
+
+impl Default for TrackSettings {
+    fn default() -> Self {
+        TrackSettings {
+            constructor: Constructor::Bayesian,
+            conflict_threshold: f64::INFINITY,
+            selection: SelectionPolicy::LargestSubset,
+            estimator: Estimator::WeightedMean,
+            uncertainty_mass: 0.9,
+        }
+    }
+}
+
+fn ser_level<S: Serializer>(k: &f64, s: S) -> Result<S::Ok, S::Error> {
+    // JSON has no infinity: write it as "inf", like the combine exchange format.
+    if k.is_infinite() && *k > 0.0 {
+        ConflictLevel::Infinite.serialize(s)
+    } else {
+        ConflictLevel::Finite(*k).serialize(s)
+    }
+}
+
+fn de_level<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(ConflictLevel::deserialize(d)?.value())
+}
+
+/// Settings that passed [`TrackSettings::check`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct CheckedTrackSettings(TrackSettings);
+
+impl CheckedTrackSettings {
+    /// The validated settings.
+    pub fn get(&self) -> &TrackSettings {
+        &self.0
+    }
+}
+
+impl TrackSettings {
+    /// Validate: the threshold is not NaN and not negative, `min_size` ≥ 1, `uncertainty_mass` in
+    /// (0, 1].
+    ///
+    /// # Errors
+    /// [`TrackError::InvalidSetting`] naming the field and what is accepted.
+    pub fn check(self) -> Result<CheckedTrackSettings, TrackError> {
+        if self.conflict_threshold.is_nan() || self.conflict_threshold < 0.0 {
+            return Err(TrackError::InvalidSetting {
+                field: "conflict_threshold",
+                reason: format!(
+                    "{} is not a level of conflict: use a number ≥ 0 or \"inf\"",
+                    self.conflict_threshold
+                ),
+            });
+        }
+        if self.selection.min_size() == 0 {
+            return Err(TrackError::InvalidSetting {
+                field: "selection.min_size",
+                reason: "must be at least 1".into(),
+            });
+        }
+        if !(self.uncertainty_mass > 0.0 && self.uncertainty_mass <= 1.0) {
+            return Err(TrackError::InvalidSetting {
+                field: "uncertainty_mass",
+                reason: format!("{} is not in (0, 1]", self.uncertainty_mass),
+            });
+        }
+        Ok(CheckedTrackSettings(self))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_round_trip_through_json_and_toml() {
+        let s = TrackSettings::default();
+        let json = serde_json::to_string(&s).unwrap();
+        assert!(json.contains("\"conflict_threshold\":\"inf\""), "{json}");
+        assert_eq!(serde_json::from_str::<TrackSettings>(&json).unwrap(), s);
+        let t = TrackSettings {
+            conflict_threshold: 0.25,
+            selection: SelectionPolicy::LowestConflict { min_size: 3 },
+            estimator: Estimator::Map,
+            constructor: Constructor::Consonant,
+            uncertainty_mass: 0.5,
+        };
+        let text = toml::to_string(&t).unwrap();
+        assert_eq!(toml::from_str::<TrackSettings>(&text).unwrap(), t);
+        let parsed: TrackSettings = toml::from_str(
+            "constructor = \"consonant\"\nselection = { policy = \"splitting\", min_size = 2 }\n",
+        )
+        .unwrap();
+        assert_eq!(parsed.selection, SelectionPolicy::Splitting { min_size: 2 });
+        assert_eq!(parsed.conflict_threshold, f64::INFINITY);
+    }
+
+    #[test]
+    fn unknown_fields_and_bad_values_are_rejected() {
+        assert!(toml::from_str::<TrackSettings>("treshold = 1.0").is_err());
+        assert!(toml::from_str::<TrackSettings>(
+            "selection = { policy = \"largest_subset\", min_size = 2 }"
+        )
+        .is_err());
+        let bad = |f: fn(&mut TrackSettings)| {
+            let mut s = TrackSettings::default();
+            f(&mut s);
+            s.check()
+        };
+        assert!(toml::from_str::<TrackSettings>("selection = { policy = \"splitting\" }").is_err());
+        assert!(toml::from_str::<TrackSettings>(
+            "selection = { policy = \"splitting\", min_size = 2, x = 1 }"
+        )
+        .is_err());
+        assert!(bad(|s| s.conflict_threshold = f64::NAN).is_err());
+        assert!(bad(|s| s.conflict_threshold = -1.0).is_err());
+        assert!(bad(|s| s.selection = SelectionPolicy::Splitting { min_size: 0 }).is_err());
+        assert!(bad(|s| s.uncertainty_mass = 0.0).is_err());
+        assert!(bad(|s| s.uncertainty_mass = f64::NAN).is_err());
+        assert!(bad(|s| s.conflict_threshold = 0.0).is_ok());
+    }
+}

@@ -1,0 +1,534 @@
+//! Integration tests of the tracker on a synthetic problem whose features are exact functions of
+//! the pose, with the model built in the test through `Refining::from_assignment`.
+
+use evitrack::evidence::{
+    dempster_all, from_likelihoods, pignistic, pointwise_estimate, relative_plausibility,
+    Constructor, LikelihoodIssue, MassFunction, Refining,
+};
+use evitrack::track::{
+    Estimator, FeatureIssue, FeatureModel, SelectionPolicy, TrackSettings, Tracker, TrackerModel,
+};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A scalar feature a·p + b quantised into `states` equal bins over [lo, hi], with Gaussian
+/// likelihoods (σ = half a bin) around the bin centres.
+#[derive(Clone, Copy)]
+struct Feat {
+    coef: [f64; 2],
+    lo: f64,
+    hi: f64,
+    states: usize,
+}
+
+impl Feat {
+    fn value(&self, p: [f64; 2]) -> f64 {
+        self.coef[0] * p[0] + self.coef[1] * p[1]
+    }
+    fn width(&self) -> f64 {
+        (self.hi - self.lo) / self.states as f64
+    }
+    fn state(&self, v: f64) -> usize {
+        (((v - self.lo) / self.width()).floor().max(0.0) as usize).min(self.states - 1)
+    }
+    fn likelihoods(&self, v: f64) -> Vec<f64> {
+        let w = self.width();
+        let sigma = 0.5 * w;
+        (0..self.states)
+            .map(|j| {
+                let c = self.lo + (j as f64 + 0.5) * w;
+                (-(v - c).powi(2) / (2.0 * sigma * sigma)).exp()
+            })
+            .collect()
+    }
+}
+
+const X: Feat = Feat {
+    coef: [1.0, 0.0],
+    lo: -0.5,
+    hi: 19.5,
+    states: 20,
+};
+const Y: Feat = Feat {
+    coef: [0.0, 1.0],
+    lo: -0.5,
+    hi: 19.5,
+    states: 20,
+};
+const X_COARSE: Feat = Feat {
+    coef: [1.0, 0.0],
+    lo: -0.5,
+    hi: 19.5,
+    states: 7,
+};
+const Y_COARSE: Feat = Feat {
+    coef: [0.0, 1.0],
+    lo: -0.5,
+    hi: 19.5,
+    states: 7,
+};
+const SUM: Feat = Feat {
+    coef: [1.0, 1.0],
+    lo: -0.5,
+    hi: 38.5,
+    states: 10,
+};
+const DIFF: Feat = Feat {
+    coef: [1.0, -1.0],
+    lo: -19.5,
+    hi: 19.5,
+    states: 10,
+};
+
+/// The 20 × 20 mesh with ε = 1 mm.
+fn mesh() -> Vec<[f64; 2]> {
+    (0..20)
+        .flat_map(|y| (0..20).map(move |x| [x as f64, y as f64]))
+        .collect()
+}
+
+fn model(feats: &[Feat], validation: &[Option<f64>]) -> TrackerModel {
+    let poses = mesh();
+    let features = feats
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let assignment: Vec<usize> = poses.iter().map(|&p| f.state(f.value(p))).collect();
+            FeatureModel {
+                refining: Refining::from_assignment(f.states, &assignment)
+                    .expect("every bin holds a node"),
+                validation_error: validation.get(i).copied().flatten(),
+            }
+        })
+        .collect();
+    TrackerModel::new(poses, features).expect("valid model")
+}
+
+fn tracker(feats: &[Feat], settings: TrackSettings) -> Tracker {
+    Tracker::new(model(feats, &[]), settings.check().expect("valid settings")).expect("tracker")
+}
+
+fn frame(feats: &[Feat], p: [f64; 2]) -> Vec<Option<Vec<f64>>> {
+    feats
+        .iter()
+        .map(|f| Some(f.likelihoods(f.value(p))))
+        .collect()
+}
+
+fn points(n: usize, seed: u64) -> Vec<[f64; 2]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| [rng.random_range(0.0..19.0), rng.random_range(0.0..19.0)])
+        .collect()
+}
+
+fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
+fn mean_error(t: &Tracker, feats: &[Feat], pts: &[[f64; 2]]) -> f64 {
+    pts.iter()
+        .map(|&p| {
+            dist(
+                t.track(&frame(feats, p))
+                    .unwrap()
+                    .estimate
+                    .expect("estimate"),
+                p,
+            )
+        })
+        .sum::<f64>()
+        / pts.len() as f64
+}
+
+#[test]
+fn synthetic_problem_reaches_the_quantisation_floor() {
+    let feats = [X, Y, SUM, DIFF];
+    let pts = points(400, 7);
+    for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        let map = tracker(
+            &feats,
+            TrackSettings {
+                constructor,
+                estimator: Estimator::Map,
+                ..TrackSettings::default()
+            },
+        );
+        let mean = tracker(
+            &feats,
+            TrackSettings {
+                constructor,
+                ..TrackSettings::default()
+            },
+        );
+        let e_map = mean_error(&map, &feats, &pts);
+        let e_mean = mean_error(&mean, &feats, &pts);
+        eprintln!("{constructor:?}: map {e_map:.4}, weighted mean {e_mean:.4}");
+        // Nearest-node floor for a regular mesh: 0.3826 ε on average.
+        assert!((0.33..0.43).contains(&e_map), "MAP error {e_map}");
+        assert!(
+            e_mean < 0.3826 && e_mean < e_map,
+            "weighted mean {e_mean} vs MAP {e_map}"
+        );
+    }
+}
+
+/// The reference: extend every feature of the group onto the sample poses and combine with the
+/// general Dempster's rule.
+fn reference(
+    t: &Tracker,
+    constructor: Constructor,
+    lik: &[Option<Vec<f64>>],
+    group: &[usize],
+) -> (f64, MassFunction) {
+    let exts: Vec<MassFunction> = group
+        .iter()
+        .map(|&i| {
+            let m = from_likelihoods(constructor, lik[i].as_ref().unwrap())
+                .unwrap()
+                .mass;
+            t.model().features()[i].refining.extend(&m).unwrap()
+        })
+        .collect();
+    let c = dempster_all(&exts).unwrap();
+    (c.conflict_level, c.mass.expect("finite conflict"))
+}
+
+#[test]
+fn fast_path_equals_general_combination() {
+    let feats = [X, Y, X_COARSE, Y_COARSE, SUM, DIFF];
+    for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        for estimator in [
+            Estimator::WeightedMean,
+            Estimator::Pignistic,
+            Estimator::Map,
+        ] {
+            let t = tracker(
+                &feats,
+                TrackSettings {
+                    constructor,
+                    estimator,
+                    ..TrackSettings::default()
+                },
+            );
+            for p in points(15, 11) {
+                let lik = frame(&feats, p);
+                let est = t.track(&lik).unwrap();
+                assert_eq!(est.group, (0..feats.len()).collect::<Vec<_>>());
+                let (level, m) = reference(&t, constructor, &lik, &est.group);
+                let k = est.conflict_level.unwrap();
+                assert!((k - level).abs() < 1e-12 * (1.0 + level), "{k} vs {level}");
+                assert!(
+                    (t.full_conflict_level(&lik).unwrap() - level).abs() < 1e-12 * (1.0 + level)
+                );
+                let rp = relative_plausibility(&m).unwrap();
+                for (a, b) in est.plausibility.iter().zip(&rp) {
+                    assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+                }
+                let want = match estimator {
+                    Estimator::WeightedMean => pointwise_estimate(&rp, t.model().poses()).unwrap(),
+                    Estimator::Pignistic => {
+                        pointwise_estimate(&pignistic(&m).unwrap(), t.model().poses()).unwrap()
+                    }
+                    Estimator::Map => {
+                        let best = (0..rp.len()).fold(0, |b, q| if rp[q] > rp[b] { q } else { b });
+                        t.model().poses()[best]
+                    }
+                };
+                let got = est.estimate.unwrap();
+                assert!(dist(got, want) < 1e-9, "{estimator:?}: {got:?} vs {want:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn pairwise_conflicts_equal_the_general_combination() {
+    let feats = [X, Y, X_COARSE, SUM, DIFF];
+    for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        let t = tracker(
+            &feats,
+            TrackSettings {
+                constructor,
+                ..TrackSettings::default()
+            },
+        );
+        let p = [4.3, 12.8];
+        let mut lik = frame(&feats, p);
+        lik[0] = Some(X.likelihoods(16.0)); // corrupted: pairwise conflicts become large
+        let k = t.pairwise_conflicts(&lik).unwrap();
+        for (i, row) in k.iter().enumerate() {
+            for (j, kij) in row.iter().enumerate().skip(i + 1) {
+                let (level, _) = reference(&t, constructor, &lik, &[i, j]);
+                let got = kij.unwrap();
+                assert!(
+                    (got - level).abs() < 1e-9 * (1.0 + level),
+                    "{constructor:?} {i},{j}: {got} vs {level}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn corrupted_feature_is_left_out_and_estimate_stays_close() {
+    let feats = [X, Y, X_COARSE, Y_COARSE, SUM, DIFF];
+    let threshold = 2.0;
+    let pts = points(60, 23);
+    for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        let t = tracker(
+            &feats,
+            TrackSettings {
+                constructor,
+                conflict_threshold: threshold,
+                ..TrackSettings::default()
+            },
+        );
+        let everything = tracker(
+            &feats,
+            TrackSettings {
+                constructor,
+                ..TrackSettings::default()
+            },
+        );
+        let (mut excluded, mut err_gated, mut err_open) = (0, 0.0, 0.0);
+        for (n, &p) in pts.iter().enumerate() {
+            let clean = t.track(&frame(&feats, p)).unwrap();
+            let mut lik = frame(&feats, p);
+            // Every other frame, the fine x feature reports x shifted by 10 mm.
+            if n % 2 == 1 {
+                let wrong = if p[0] < 9.5 { p[0] + 10.0 } else { p[0] - 10.0 };
+                lik[0] = Some(X.likelihoods(wrong));
+            } else {
+                assert_eq!(
+                    clean.group.len(),
+                    feats.len(),
+                    "clean frames keep every feature"
+                );
+                continue;
+            }
+            let k = t.pairwise_conflicts(&lik).unwrap();
+            let worst = (1..feats.len())
+                .filter_map(|j| k[0][j])
+                .fold(0.0f64, f64::max);
+            let gated = t.track(&lik).unwrap();
+            if worst > threshold {
+                excluded += 1;
+                assert!(
+                    !gated.group.contains(&0),
+                    "corrupted feature kept: {:?}",
+                    gated.group
+                );
+                assert!(gated.flags.excluded.contains(&0));
+            }
+            let e = gated.estimate.unwrap();
+            err_gated += dist(e, p);
+            err_open += dist(everything.track(&lik).unwrap().estimate.unwrap(), p);
+            assert!(
+                dist(e, clean.estimate.unwrap()) < 1.5,
+                "{p:?}: {e:?} vs clean {:?}",
+                clean.estimate
+            );
+        }
+        let frames = (pts.len() / 2) as f64;
+        eprintln!(
+            "{constructor:?}: excluded {excluded}, gated {:.3}, open {:.3}",
+            err_gated / frames,
+            err_open / frames
+        );
+        assert!(
+            excluded as f64 >= 0.9 * frames,
+            "excluded on {excluded} of {frames} frames"
+        );
+        assert!(
+            err_gated < 0.5 * err_open,
+            "gating helps: {err_gated} vs {err_open}"
+        );
+    }
+}
+
+#[test]
+fn bad_inputs_give_flags_not_panics() {
+    // Every pair of these features has some positive conflict (no pair is independent).
+    let feats = [X, X_COARSE, SUM, DIFF];
+    let t = Tracker::new(
+        model(&feats, &[Some(2.0), Some(0.7), None, Some(0.9)]),
+        TrackSettings {
+            conflict_threshold: 0.0,
+            ..TrackSettings::default()
+        }
+        .check()
+        .unwrap(),
+    )
+    .unwrap();
+    let p = [6.2, 9.9];
+    // Nothing usable.
+    let none = t.track(&[None, None, None, None]).unwrap();
+    assert_eq!(none.estimate, None);
+    assert!(none.flags.no_usable_feature && none.flags.any());
+    assert_eq!(none.flags.missing().collect::<Vec<_>>(), vec![0, 1, 2, 3]);
+    let nan = t
+        .track(&[
+            Some(vec![f64::NAN; 20]),
+            Some(vec![0.0; 7]),
+            Some(vec![1.0; 3]),
+            Some(vec![-1.0; 10]),
+        ])
+        .unwrap();
+    assert_eq!(nan.estimate, None);
+    assert_eq!(
+        nan.flags.unusable,
+        vec![
+            (0, FeatureIssue::Likelihood(LikelihoodIssue::NonFinite)),
+            (1, FeatureIssue::Likelihood(LikelihoodIssue::AllZero)),
+            (
+                2,
+                FeatureIssue::WrongLength {
+                    expected: 10,
+                    found: 3
+                }
+            ),
+            (3, FeatureIssue::Likelihood(LikelihoodIssue::Negative)),
+        ]
+    );
+    // Wrong number of entries is an error, not a panic.
+    assert!(t.track(&[None]).is_err());
+    // Threshold 0: every pair with positive conflict is incompatible → fallback to the feature with
+    // the lowest validation error (feature 1, 0.7 mm), flagged.
+    let k = t.pairwise_conflicts(&frame(&feats, p)).unwrap();
+    assert!((0..4).all(|i| (0..4).all(|j| i == j || k[i][j].unwrap() > 0.0)));
+    let mut lik = frame(&feats, p);
+    let fb = t.track(&lik).unwrap();
+    assert!(fb.flags.fallback);
+    assert_eq!(fb.group, vec![1]);
+    assert_eq!(fb.flags.excluded, vec![0, 2, 3]);
+    // The coarse x feature alone: x within its bin, y at the middle of the mesh.
+    let e = fb.estimate.unwrap();
+    assert!(
+        (e[0] - p[0]).abs() < X_COARSE.width() && (e[1] - 9.5).abs() < 1e-9,
+        "{e:?}"
+    );
+    // With feature 1 missing, the next best validation error (feature 3).
+    lik[1] = None;
+    let fb = t.track(&lik).unwrap();
+    assert!(fb.flags.fallback);
+    assert_eq!(fb.group, vec![3]);
+    // One usable feature is not a fallback.
+    let single = t
+        .track(&[None, Some(X_COARSE.likelihoods(p[0])), None, None])
+        .unwrap();
+    assert!(!single.flags.fallback);
+    assert_eq!(single.group, vec![1]);
+    assert!(single.estimate.is_some());
+    // Infinite pairwise conflict is never an edge, even with an infinite threshold.
+    let open = tracker(&[X, X_COARSE], TrackSettings::default());
+    let mut sharp = vec![0.0; 20];
+    sharp[0] = 1.0;
+    let mut far = vec![0.0; 7];
+    far[6] = 1.0;
+    let est = open.track(&[Some(sharp), Some(far)]).unwrap();
+    assert!(est.flags.fallback);
+    assert_eq!(est.group, vec![0]);
+    assert_eq!(
+        open.pairwise_conflicts(&[Some(vec![1.0; 20]), None])
+            .unwrap()[0][1],
+        None
+    );
+}
+
+/// Three features on three poses, pairwise compatible but with no common pose: the group of three
+/// has infinite conflict (Theorem 4.3 case), so groups of two are used.
+fn triangle(policy: SelectionPolicy) -> (Tracker, Vec<Option<Vec<f64>>>) {
+    let poses = vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+    let assignments = [[0, 0, 1], [0, 1, 0], [1, 0, 0]];
+    let features = assignments
+        .iter()
+        .map(|a| FeatureModel {
+            refining: Refining::from_assignment(2, a).unwrap(),
+            validation_error: None,
+        })
+        .collect();
+    let settings = TrackSettings {
+        selection: policy,
+        ..TrackSettings::default()
+    };
+    let t = Tracker::new(
+        TrackerModel::new(poses, features).unwrap(),
+        settings.check().unwrap(),
+    )
+    .unwrap();
+    (t, vec![Some(vec![1.0, 0.0]); 3])
+}
+
+#[test]
+fn pairwise_compatible_group_with_infinite_conflict_is_not_combined() {
+    let (t, lik) = triangle(SelectionPolicy::LargestSubset);
+    let k = t.pairwise_conflicts(&lik).unwrap();
+    assert!(k.iter().flatten().all(|x| *x == Some(0.0)));
+    assert_eq!(t.full_conflict_level(&lik).unwrap(), f64::INFINITY);
+    let est = t.track(&lik).unwrap();
+    assert_eq!(est.group, vec![0, 1]);
+    assert_eq!(est.conflict_level, Some(0.0));
+    assert_eq!(est.estimate, Some([0.0, 0.0]));
+    assert!(!est.flags.fallback);
+}
+
+#[test]
+fn splitting_lists_every_maximal_group() {
+    let (t, lik) = triangle(SelectionPolicy::Splitting { min_size: 2 });
+    let est = t.track(&lik).unwrap();
+    let groups: Vec<Vec<usize>> = est.alternatives.iter().map(|a| a.group.clone()).collect();
+    assert_eq!(groups, vec![vec![0, 1], vec![0, 2], vec![1, 2]]);
+    let estimates: Vec<[f64; 2]> = est.alternatives.iter().map(|a| a.estimate).collect();
+    assert_eq!(estimates, vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]);
+    assert_eq!(est.group, vec![0, 1]);
+    // min_size 3: no combinable group that large → fallback, no alternatives.
+    let (t, lik) = triangle(SelectionPolicy::Splitting { min_size: 3 });
+    let est = t.track(&lik).unwrap();
+    assert!(est.flags.fallback && est.alternatives.is_empty());
+}
+
+#[test]
+fn lowest_conflict_picks_the_least_conflicting_group() {
+    let feats = [X, Y, X_COARSE, Y_COARSE, SUM, DIFF];
+    let t = tracker(
+        &feats,
+        TrackSettings {
+            selection: SelectionPolicy::LowestConflict { min_size: 2 },
+            ..TrackSettings::default()
+        },
+    );
+    for p in points(10, 5) {
+        let lik = frame(&feats, p);
+        let est = t.track(&lik).unwrap();
+        let k = t.pairwise_conflicts(&lik).unwrap();
+        let best_pair = (0..feats.len())
+            .flat_map(|i| (i + 1..feats.len()).map(move |j| (i, j)))
+            .map(|(i, j)| k[i][j].unwrap())
+            .fold(f64::INFINITY, f64::min);
+        // K grows with the group (Theorem 4.3), so the lowest conflict is a pair's, or a tie.
+        assert!(
+            (est.conflict_level.unwrap() - best_pair).abs() < 1e-9,
+            "{:?} vs {best_pair}",
+            est.conflict_level
+        );
+        assert!(est.group.len() >= 2);
+    }
+}
+
+#[test]
+fn uncertainty_reflects_the_evidence() {
+    let feats = [X, Y, SUM, DIFF];
+    let t = tracker(&feats, TrackSettings::default());
+    let p = [9.3, 4.6];
+    let sharp = t.track(&frame(&feats, p)).unwrap();
+    let vague = t
+        .track(&[None, Some(Y.likelihoods(p[1])), None, None])
+        .unwrap();
+    let (us, uv) = (sharp.uncertainty.unwrap(), vague.uncertainty.unwrap());
+    assert!(us.radius < 1.5 && us.spread < 1.0, "{us:?}");
+    // Only y known: x spreads over the whole width of the mesh.
+    assert!(uv.radius > 5.0 && uv.spread > 4.0, "{uv:?}");
+    let s: f64 = sharp.plausibility.iter().sum();
+    assert!((s - 1.0).abs() < 1e-12);
+}
