@@ -106,17 +106,18 @@ pub enum AssignmentRule {
 #[serde(default, deny_unknown_fields)]
 pub struct HmmSettings {
     /// Number of EM runs from different seeded k-means++ initialisations; the run with the best
-    /// final log-likelihood is kept. At least 1.
+    /// final log-likelihood is kept (restarts that k-means puts at an identical start run once).
+    /// At least 1; default 3.
     pub restarts: usize,
-    /// Cap on EM iterations per run. At least 1.
+    /// Cap on EM iterations per run. At least 1; default 200.
     pub max_iterations: usize,
     /// EM stops when one iteration raises the log-likelihood by less than `tolerance` per
-    /// observation. Finite, at least 0.
+    /// observation. Finite, at least 0; default 1e-4.
     pub tolerance: f64,
     /// Lower bound on every state variance, relative to the variance of the training data (when
-    /// the data is constant: relative to max(mean², 1)). Finite, in (0, 1].
+    /// the data is constant: relative to max(mean², 1)). Finite, in (0, 1]; default 1e-3.
     pub variance_floor: f64,
-    /// How training samples are attributed to states.
+    /// How training samples are attributed to states; default [`AssignmentRule::MaxLikelihood`].
     pub assignment: AssignmentRule,
 }
 
@@ -318,9 +319,11 @@ impl GaussianHmm {
         if !y.is_finite() {
             return Err(HmmError::NonFinite { index: 0, value: y });
         }
-        let consts = EmissionConsts::new(&self.means, &self.variances);
-        for (j, o) in out.iter_mut().enumerate() {
-            *o = consts.log_density(j, y);
+        // Per call, without the allocations of `EmissionConsts`: this is the tracker's per-frame
+        // path.
+        for ((o, m), v) in out.iter_mut().zip(&self.means).zip(&self.variances) {
+            let d2 = (y - m) * (y - m) / v;
+            *o = -0.5 * (LN_2PI + v.ln()) - 0.5 * d2.min(MAX_SQUARED_DISTANCE);
         }
         Ok(())
     }
@@ -575,24 +578,32 @@ fn exp_nonpositive(x: f64) -> f64 {
     let k = (x * std::f64::consts::LOG2_E - 0.5) as i64;
     let kf = k as f64;
     let r = (x - kf * LN2_HI) - kf * LN2_LO;
-    let mut p = 1.0 / 6_227_020_800.0;
-    for d in [
-        479_001_600.0,
-        39_916_800.0,
-        3_628_800.0,
-        362_880.0,
-        40_320.0,
-        5_040.0,
-        720.0,
-        120.0,
-        24.0,
-        6.0,
-        2.0,
+    // Coefficients 1/i!, i = 0..=13, evaluated by Estrin's scheme: a shallower dependency
+    // chain than Horner's, which matters as the E-step is latency-bound here.
+    const C: [f64; 14] = [
         1.0,
         1.0,
-    ] {
-        p = p * r + 1.0 / d;
-    }
+        1.0 / 2.0,
+        1.0 / 6.0,
+        1.0 / 24.0,
+        1.0 / 120.0,
+        1.0 / 720.0,
+        1.0 / 5_040.0,
+        1.0 / 40_320.0,
+        1.0 / 362_880.0,
+        1.0 / 3_628_800.0,
+        1.0 / 39_916_800.0,
+        1.0 / 479_001_600.0,
+        1.0 / 6_227_020_800.0,
+    ];
+    let r2 = r * r;
+    let r4 = r2 * r2;
+    let r8 = r4 * r4;
+    let q0 = (C[0] + C[1] * r) + (C[2] + C[3] * r) * r2;
+    let q1 = (C[4] + C[5] * r) + (C[6] + C[7] * r) * r2;
+    let q2 = (C[8] + C[9] * r) + (C[10] + C[11] * r) * r2;
+    let q3 = C[12] + C[13] * r;
+    let p = (q0 + q1 * r4) + (q2 + q3 * r4) * r8;
     p * f64::from_bits(((k + 1023) as u64) << 52)
 }
 
@@ -730,11 +741,18 @@ impl Workspace {
     fn forward_k(&mut self, k: usize, y: &[f64], p: &Params) -> Option<f64> {
         let consts = EmissionConsts::new(&p.means, &p.variances);
         let trans = &p.trans[..k * k];
-        for ((row, off), &yt) in self
+        // Log-likelihood = Σ offsetₜ − Σ ln(inv_scaleₜ) + ln Σ α_T. Emissions and the forward
+        // recursion share one loop so that the emission arithmetic fills the latency of the
+        // recursion's dependency chain.
+        let mut log_scale = 0.0;
+        let mut prev = [0.0f64; 0].as_slice();
+        for ((((row, off), &yt), cur), inv) in self
             .emis
             .chunks_exact_mut(k)
             .zip(self.offset.iter_mut())
             .zip(y)
+            .zip(self.alpha.chunks_exact_mut(k))
+            .zip(self.inv_scale.iter_mut())
         {
             let mut m = f64::NEG_INFINITY;
             let mut best = 0;
@@ -758,24 +776,17 @@ impl Workspace {
                 };
             }
             *off = m;
-        }
-        // Log-likelihood = Σ offsetₜ − Σ ln(inv_scaleₜ) + ln Σ α_T.
-        let mut log_scale = 0.0;
-        let mut prev = [0.0f64; 0].as_slice();
-        for ((cur, b), inv) in self
-            .alpha
-            .chunks_exact_mut(k)
-            .zip(self.emis.chunks_exact(k))
-            .zip(self.inv_scale.iter_mut())
-        {
+            let b = &*row;
             if prev.is_empty() {
                 for j in 0..k {
                     cur[j] = p.initial[j] * b[j];
                 }
             } else {
                 for j in 0..k {
-                    let mut s = 0.0;
-                    for i in 0..k {
+                    // Started from the first term, not 0.0: one addition less on the chain
+                    // that links consecutive steps.
+                    let mut s = prev[0] * trans[j];
+                    for i in 1..k {
                         s += prev[i] * trans[i * k + j];
                     }
                     cur[j] = s * b[j];

@@ -242,13 +242,16 @@ pub enum Tuning {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ModelSettings {
-    /// HMM state count per feature (used when `tuning` is `given`).
+    /// HMM state count per feature (used when `tuning` is `given`): `states = 3` or
+    /// `states = [3, 4, ...]`; default 3.
     pub states: StateCounts,
     /// EM settings shared by every feature, including the state assignment rule.
     pub hmm: HmmSettings,
-    /// Seed of every random draw of training.
+    /// Seed of every random draw of training (each feature and state count gets a seed derived
+    /// from it); default 0.
     pub seed: u64,
-    /// How state counts are chosen.
+    /// How state counts are chosen, e.g. `[tuning] method = "bic", min_states = 2,
+    /// max_states = 6`; default `given`.
     pub tuning: Tuning,
 }
 
