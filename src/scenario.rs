@@ -95,7 +95,7 @@ pub struct Expectations {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Scenario {
-    /// Name used for output folders and tables.
+    /// Name used for output folders and tables (default: the file's name without `.toml`).
     pub name: String,
     /// Free text.
     pub description: String,
@@ -105,7 +105,8 @@ pub struct Scenario {
     pub sim: SimSettings,
     /// The sample trajectory.
     pub sample: SampleSettings,
-    /// Validation motion: used to learn the conflict threshold and per-feature errors.
+    /// Validation motion: ranks the features for the fallback, learns the conflict threshold
+    /// and tunes state counts. Default: a seeded random path, 10 s at 10 frames/s.
     pub validation: Option<Motion>,
     /// Test motions: the reported errors are measured on them.
     pub tests: Vec<Motion>,
@@ -127,13 +128,12 @@ pub struct Scenario {
 }
 
 impl Default for Scenario {
-    /// The paper's dense Bayesian setup, Figure 2(a).
+    /// The settings of the paper's dense Bayesian setup, Figure 2(a), without a name: what a
+    /// scenario file gets for every value it leaves out.
     fn default() -> Self {
         Self {
-            name: "default".into(),
-            description: "The paper's dense Bayesian setup (Figure 2a): 1 mm mesh, 6 size \
-                          functions, n = 2,2,2,3,3,2"
-                .into(),
+            name: String::new(),
+            description: String::new(),
             seed: 1,
             sim: SimSettings::default(),
             sample: SampleSettings::default(),
@@ -147,7 +147,7 @@ impl Default for Scenario {
             track: TrackSettings::default(),
             learn_threshold: false,
             expect: Expectations::default(),
-            paper_error: Some(2.3585),
+            paper_error: None,
             sweep: Sweep::default(),
         }
     }
@@ -263,7 +263,14 @@ pub struct ScenarioSet {
 impl ScenarioSet {
     /// The built-in default: the paper's dense Bayesian setup, run once.
     pub fn builtin_default() -> Self {
-        let base = Scenario::default();
+        let base = Scenario {
+            name: "default".into(),
+            description: "The paper's dense Bayesian setup (Figure 2a): 1 mm mesh, 6 size \
+                          functions, n = 2,2,2,3,3,2"
+                .into(),
+            paper_error: Some(2.3585),
+            ..Scenario::default()
+        };
         Self {
             source: "built-in".into(),
             variants: vec![base.clone()],
@@ -288,6 +295,13 @@ impl ScenarioSet {
         };
         // Deserialise from the text itself so unknown fields are reported with line and column.
         let mut base: Scenario = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        if base.name.is_empty() {
+            // A file without a name is named after itself.
+            base.name = Path::new(source)
+                .file_stem()
+                .map(|stem| stem.to_string_lossy().into_owned())
+                .unwrap_or_default();
+        }
         base.check()?;
         let sweep = std::mem::take(&mut base.sweep);
         let mut table: toml::Table =
