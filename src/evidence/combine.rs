@@ -111,6 +111,13 @@ struct Scratch {
     table: Vec<u64>,
 }
 
+/// Table slots allocated up front are at most twice this.
+#[cfg(not(test))]
+const INITIAL_SLOTS: usize = 1 << 16;
+/// Tiny in unit tests, so that the property tests exercise [`Engine::grow`].
+#[cfg(test)]
+const INITIAL_SLOTS: usize = 4;
+
 /// Buffers larger than this (in words) are released after use instead of being kept.
 const KEEP_WORDS: usize = 1 << 20;
 
@@ -162,14 +169,40 @@ impl Engine {
         }
     }
 
+    /// Clear `out` and size the table for the expected number of sets (at most `INITIAL_SLOTS`
+    /// slots up front; [`Engine::grow`] doubles it when it fills, so a huge number of pairs with
+    /// few distinct intersections does not allocate a huge table).
     fn prepare(&mut self, pairs: usize, out: &mut Arena) -> usize {
-        let cap = (2 * pairs).next_power_of_two().max(16);
+        let cap = (2 * pairs.min(INITIAL_SLOTS)).next_power_of_two().max(16);
         self.table.clear();
         self.table.resize(cap, EMPTY_SLOT);
         out.clear();
-        out.mass.reserve(pairs);
+        out.mass.reserve(pairs.min(INITIAL_SLOTS));
         out.words.reserve(pairs.min(1024) * self.w);
         cap - 1
+    }
+
+    /// Keep the table at most half full: double it and re-insert every set. Returns the new mask.
+    #[cold]
+    fn grow(&mut self, out: &Arena) -> usize {
+        let w = self.w;
+        let cap = 2 * self.table.len();
+        self.table.clear();
+        self.table.resize(cap, EMPTY_SLOT);
+        let mask = cap - 1;
+        for (i, words) in out.words.chunks_exact(w).enumerate() {
+            let h = words
+                .iter()
+                .zip(&self.keys)
+                .fold(0u64, |h, (xk, key)| h.wrapping_add(fold_mul(xk ^ key, MIX)));
+            let hf = fold_mul(h, MIX);
+            let mut pos = (hf as usize) & mask;
+            while self.table[pos] != EMPTY_SLOT {
+                pos = (pos + 1) & mask;
+            }
+            self.table[pos] = (hf & 0xFFFF_FFFF_0000_0000) | i as u64;
+        }
+        mask
     }
 
     /// Add mass `m` to the set `x` (hash `h`): merge with an equal set already in `out`, or append.
@@ -205,7 +238,7 @@ impl Engine {
     }
 
     fn step_w<const W: usize>(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> f64 {
-        let mask = self.prepare(cur.len() * b.len(), out);
+        let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut keys = [0u64; W];
         keys.copy_from_slice(&self.keys[..W]);
         let mut empty = 0.0;
@@ -225,6 +258,9 @@ impl Engine {
                 for k in 0..W {
                     h = h.wrapping_add(fold_mul(x[k] ^ keys[k], MIX));
                 }
+                if 2 * out.len() >= mask {
+                    mask = self.grow(out);
+                }
                 Self::insert(&mut self.table, mask, out, &x, h, ma * mb);
             }
         }
@@ -233,7 +269,7 @@ impl Engine {
 
     fn step_dyn(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> f64 {
         let w = self.w;
-        let mask = self.prepare(cur.len() * b.len(), out);
+        let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut empty = 0.0;
         let mut x = vec![0u64; w];
         for (a, &ma) in cur.words.chunks_exact(w).zip(&cur.mass) {
@@ -251,6 +287,9 @@ impl Engine {
                     .iter()
                     .zip(&self.keys)
                     .fold(0u64, |h, (xk, key)| h.wrapping_add(fold_mul(xk ^ key, MIX)));
+                if 2 * out.len() >= mask {
+                    mask = self.grow(out);
+                }
                 Self::insert(&mut self.table, mask, out, &x, h, ma * mb);
             }
         }

@@ -2,11 +2,19 @@
 //!
 //! Work is done on the *cells* of the model: the classes of sample poses that share the same state
 //! in every feature. Every extended measurement function has focal sets that are unions of cells,
-//! so the cells discern all relevant interactions (Definition 2.6): conflicts and combinations
-//! computed on cells equal those on the sample poses, at a fraction of the cost. Pairwise conflicts
-//! are computed on the features' own frames through precomputed state co-occurrences, and the
-//! relative plausibility of the sample poses through the contour-function identity (product of
-//! the features' contours), which holds for both constructors.
+//! so the cells discern all relevant interactions (Definition 2.6): conflicts and combinations on
+//! the cells equal those on the sample poses. Three exact shortcuts avoid combining at all:
+//!
+//! - pairwise conflicts are computed on the features' own frames through precomputed state
+//!   co-occurrences;
+//! - a group's level of conflict is, for Bayesian functions, a sum over the state tuples that
+//!   occur on the cells, and for consonant functions Dempster's rule on the Pareto-minimal level
+//!   vectors of the cells (nested focal sets meet the cells iff they meet those);
+//! - the relative plausibility of the sample poses is the normalised product of the members'
+//!   contour functions, for both constructors.
+//!
+//! Dempster's rule on the cells remains the reference (tests) and the fallback on underflow, and
+//! gives the combined function the pignistic estimator needs.
 
 use std::collections::HashMap;
 
@@ -16,8 +24,8 @@ use super::model::TrackerModel;
 use super::settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
 use super::TrackError;
 use crate::evidence::{
-    conflict_level_all, dempster_all, from_likelihoods, LikelihoodIssue, MassFunction, Refining,
-    Subset,
+    conflict_level_all, dempster_all, from_likelihoods, Constructor, LikelihoodIssue, MassFunction,
+    Refining, Subset,
 };
 
 /// Two levels of conflict closer than this are a tie.
@@ -117,10 +125,13 @@ type Measured = (Vec<Option<Usable>>, Vec<(usize, FeatureIssue)>);
 
 /// A usable feature of one frame.
 struct Usable {
-    /// Measurement function extended onto the cells.
-    on_cells: MassFunction,
     /// Contour on the feature's own frame, scaled to max 1.
     contour: Vec<f64>,
+    /// The factor the contour was divided by (its maximum).
+    scale: f64,
+    /// Consonant functions: level of every state (number of focal sets not containing it), so
+    /// that the focal sets are {state : level ≤ k}.
+    level: Vec<u32>,
     /// Measurement function on the feature's own frame.
     mass: MassFunction,
 }
@@ -266,15 +277,21 @@ impl Tracker {
                     *c /= max;
                 }
             }
-            let on_cells =
-                self.to_cells[i]
-                    .extend(&m.mass)
-                    .map_err(|source| TrackError::Evidence {
-                        feature: Some(i),
-                        source,
-                    })?;
+            let level = match self.settings.constructor {
+                Constructor::Consonant => (0..n)
+                    .map(|a| {
+                        m.mass
+                            .focal_sets()
+                            .iter()
+                            .filter(|f| !f.contains(a))
+                            .count() as u32
+                    })
+                    .collect(),
+                Constructor::Bayesian => Vec::new(),
+            };
             usable.push(Some(Usable {
-                on_cells,
+                scale: max,
+                level,
                 contour,
                 mass: m.mass,
             }));
@@ -286,21 +303,33 @@ impl Tracker {
     /// A ⊆ Θᵢ and B ⊆ Θⱼ have intersecting extensions iff B meets the states co-occurring with A.
     fn pair_level(&self, i: usize, j: usize, a: &Usable, b: &Usable) -> f64 {
         let rows = &self.co[i][j];
-        let nj = self.model.features()[j].refining.coarse_size();
-        let mut s = 0.0;
-        for (set, m) in a.mass.focal() {
-            let mut reach = Subset::empty(nj);
-            for st in set.iter() {
-                reach.union_with(&rows[st]);
+        let s = match self.settings.constructor {
+            // Singletons: s = Σ_a p_i(a) Σ_{b co-occurring with a} p_j(b).
+            Constructor::Bayesian => {
+                let mut s = 0.0;
+                for (st, &ca) in a.contour.iter().enumerate() {
+                    if ca > 0.0 {
+                        let pl: f64 = rows[st].iter().map(|x| b.contour[x]).sum();
+                        s += ca * pl;
+                    }
+                }
+                s * a.scale * b.scale
             }
-            let pl: f64 = b
-                .mass
-                .focal()
-                .filter(|(bs, _)| bs.intersects(&reach))
-                .map(|(_, x)| x)
-                .sum();
-            s += m * pl;
-        }
+            // Consonant j: Pl_j(X) = max of its contour over X, so
+            // Pl_j(N(A)) = max over states a ∈ A of the best contour co-occurring with a.
+            Constructor::Consonant => {
+                let row_max: Vec<f64> = rows
+                    .iter()
+                    .map(|r| r.iter().map(|x| b.contour[x]).fold(0.0f64, f64::max))
+                    .collect();
+                let mut s = 0.0;
+                for (set, m) in a.mass.focal() {
+                    let pl = set.iter().map(|st| row_max[st]).fold(0.0f64, f64::max);
+                    s += m * pl;
+                }
+                s * b.scale
+            }
+        };
         if s > 0.0 {
             (-s.ln()).max(0.0)
         } else {
@@ -368,15 +397,155 @@ impl Tracker {
         let parent = group & !(1u32 << (31 - group.leading_zeros()));
         let k = match memo.get(&parent) {
             Some(&kp) if kp.is_nan() || kp > bound + TIE => f64::INFINITY,
-            _ => {
-                let fs: Vec<&MassFunction> = members(group)
-                    .filter_map(|i| usable[i].as_ref().map(|u| &u.on_cells))
-                    .collect();
-                conflict_level_all(fs).unwrap_or(f64::INFINITY)
-            }
+            _ => self
+                .fast_level(group, usable)
+                .unwrap_or_else(|| self.general_level(group, usable)),
         };
         memo.insert(group, k);
         k
+    }
+
+    /// The group's measurement functions extended onto the cells (only the general path and the
+    /// pignistic estimator need them).
+    fn on_cells(&self, group: u32, usable: &[Option<Usable>]) -> Option<Vec<MassFunction>> {
+        members(group)
+            .filter_map(|i| {
+                usable[i]
+                    .as_ref()
+                    .map(|u| self.to_cells[i].extend(&u.mass).ok())
+            })
+            .collect()
+    }
+
+    /// Reference: Dempster's rule on the cells.
+    fn general_level(&self, group: u32, usable: &[Option<Usable>]) -> f64 {
+        self.on_cells(group, usable)
+            .and_then(|fs| conflict_level_all(&fs).ok())
+            .unwrap_or(f64::INFINITY)
+    }
+
+    /// Fast exact level of conflict of a group; `None` when the general path must be used.
+    fn fast_level(&self, group: u32, usable: &[Option<Usable>]) -> Option<f64> {
+        let ms: Vec<(usize, &Usable)> = members(group)
+            .filter_map(|i| usable[i].as_ref().map(|u| (i, u)))
+            .collect();
+        match self.settings.constructor {
+            Constructor::Bayesian => self.bayesian_level(&ms),
+            Constructor::Consonant => self.consonant_level(&ms),
+        }
+    }
+
+    /// Bayesian functions: the extended focal sets are blocks, so the non-conflicting mass is the
+    /// sum, over the distinct state tuples of the group that occur on the cells, of the product of
+    /// the singleton masses. Tuples are numbered feature by feature with a dense table.
+    fn bayesian_level(&self, ms: &[(usize, &Usable)]) -> Option<f64> {
+        let cells = self.cell_count();
+        let mut id = vec![0u32; cells];
+        let mut count = 1usize;
+        let mut remap: Vec<u32> = Vec::new();
+        // With every feature of the model, the tuples are the cells themselves.
+        let every = ms.len() == self.to_cells.len();
+        if every {
+            for (u, idu) in id.iter_mut().enumerate() {
+                *idu = u as u32;
+            }
+            count = cells;
+        }
+        for &(i, _) in ms.iter().filter(|_| !every) {
+            let st = self.to_cells[i].assignment();
+            let n = self.to_cells[i].coarse_size();
+            remap.clear();
+            remap.resize(count * n, u32::MAX);
+            let mut next = 0u32;
+            for (idu, &su) in id.iter_mut().zip(st) {
+                let key = *idu as usize * n + su;
+                if remap[key] == u32::MAX {
+                    remap[key] = next;
+                    next += 1;
+                }
+                *idu = remap[key];
+            }
+            count = next as usize;
+        }
+        let mut seen = vec![false; count];
+        let mut s = 0.0;
+        let mut possible = false;
+        for (u, &idu) in id.iter().enumerate() {
+            if !std::mem::replace(&mut seen[idu as usize], true) {
+                let mut prod = 1.0;
+                let mut positive = true;
+                for &(i, m) in ms {
+                    let c = m.contour[self.to_cells[i].assignment()[u]];
+                    positive &= c > 0.0;
+                    prod *= c;
+                }
+                possible |= positive;
+                s += prod;
+            }
+        }
+        if !possible {
+            return Some(f64::INFINITY);
+        }
+        // Scaled contours keep the sum away from underflow; if it still underflows, let the
+        // general path (which renormalises at every step) decide.
+        if s.is_nan() || s <= 1e-280 {
+            return None;
+        }
+        let log_scale: f64 = ms.iter().map(|(_, m)| m.scale.ln()).sum();
+        Some((-(s.ln() + log_scale)).max(0.0))
+    }
+
+    /// Consonant functions: focal sets are down-sets in level space, and a product of down-sets
+    /// (one focal set per feature) meets the cells iff it meets the Pareto-minimal level vectors
+    /// of the cells. Dempster's rule therefore runs on that (small) set of minimal points.
+    fn consonant_level(&self, ms: &[(usize, &Usable)]) -> Option<f64> {
+        let d = ms.len();
+        let cells = self.cell_count();
+        let mut levels = vec![0u32; cells * d];
+        for (u, row) in levels.chunks_exact_mut(d).enumerate() {
+            for (l, &(i, m)) in row.iter_mut().zip(ms) {
+                *l = m.level[self.to_cells[i].assignment()[u]];
+            }
+        }
+        let mut order: Vec<(u32, u32)> = levels
+            .chunks_exact(d)
+            .enumerate()
+            .map(|(u, row)| (row.iter().sum::<u32>(), u as u32))
+            .collect();
+        order.sort_unstable();
+        let mut minimal: Vec<usize> = Vec::new();
+        for &(_, u) in &order {
+            let p = &levels[u as usize * d..(u as usize + 1) * d];
+            let dominated = minimal.iter().any(|&q| {
+                levels[q * d..(q + 1) * d]
+                    .iter()
+                    .zip(p)
+                    .all(|(a, b)| a <= b)
+            });
+            if !dominated {
+                minimal.push(u as usize);
+            }
+        }
+        let frame = minimal.len();
+        let mut fs = Vec::with_capacity(d);
+        for &(i, m) in ms {
+            let st = self.to_cells[i].assignment();
+            let pairs = m
+                .mass
+                .focal()
+                .map(|(a, x)| {
+                    let mut set = Subset::empty(frame);
+                    for (p, &u) in minimal.iter().enumerate() {
+                        if a.contains(st[u]) {
+                            set.insert(p);
+                        }
+                    }
+                    (set, x)
+                })
+                .collect();
+            fs.push(MassFunction::unnormalised(frame, pairs).ok()?);
+        }
+        conflict_level_all(&fs).ok()
     }
 
     /// Relative plausibility of the sample poses under a group: the normalised product of the
@@ -451,10 +620,7 @@ impl Tracker {
         let poses = self.model.poses();
         let weights = match self.settings.estimator {
             Estimator::Pignistic => {
-                let fs: Vec<&MassFunction> = members(group)
-                    .filter_map(|i| usable[i].as_ref().map(|u| &u.on_cells))
-                    .collect();
-                let combined = dempster_all(fs).ok()?.mass?;
+                let combined = dempster_all(&self.on_cells(group, usable)?).ok()?.mass?;
                 self.pignistic(&combined)
             }
             _ => pl.clone(),
@@ -817,6 +983,133 @@ mod tests {
                 }
             }
             assert_eq!(t.cell_count(), 6);
+        }
+    }
+
+    #[test]
+    fn fast_group_levels_equal_the_general_combination() {
+        use crate::evidence::Constructor;
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(99);
+        let (mut finite, mut infinite) = (0, 0);
+        for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+            for _model in 0..4 {
+                let t_poses = 15;
+                let poses: Vec<[f64; 2]> = (0..t_poses).map(|q| [q as f64, 0.0]).collect();
+                let states: Vec<usize> = (0..5).map(|_| rng.random_range(2..6)).collect();
+                let features = states
+                    .iter()
+                    .map(|&n| {
+                        // First n poses take every state so the refining is valid.
+                        let a: Vec<usize> = (0..t_poses)
+                            .map(|q| if q < n { q } else { rng.random_range(0..n) })
+                            .collect();
+                        FeatureModel {
+                            refining: Refining::from_assignment(n, &a).unwrap(),
+                            validation_error: None,
+                        }
+                    })
+                    .collect();
+                let model = TrackerModel::new(poses, features).unwrap();
+                let settings = TrackSettings {
+                    constructor,
+                    ..TrackSettings::default()
+                };
+                let t = Tracker::new(model, settings.check().unwrap()).unwrap();
+                for _frame in 0..10 {
+                    let lik: Vec<Option<Vec<f64>>> = states
+                        .iter()
+                        .map(|&n| {
+                            let mut g: Vec<f64> =
+                                (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
+                            // Some exact zeros, so that some groups are in total conflict.
+                            for x in g.iter_mut() {
+                                if rng.random_bool(0.5) {
+                                    *x = 0.0;
+                                }
+                            }
+                            g[rng.random_range(0..n)] = 1.0;
+                            Some(g)
+                        })
+                        .collect();
+                    let (usable, _) = t.measure(&lik).unwrap();
+                    for group in 1u32..32 {
+                        let general = t.general_level(group, &usable);
+                        let fast = t.fast_level(group, &usable).unwrap();
+                        if general.is_finite() {
+                            assert!(
+                                (fast - general).abs() < 1e-12 * (1.0 + general),
+                                "{fast} vs {general}"
+                            );
+                            finite += 1;
+                        } else {
+                            assert_eq!(fast, f64::INFINITY);
+                            infinite += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            finite > 100 && infinite > 100,
+            "finite {finite}, infinite {infinite}"
+        );
+    }
+
+    use proptest::prelude::*;
+
+    fn arb_entry(n: usize) -> impl Strategy<Value = Option<Vec<f64>>> {
+        let value = prop_oneof![
+            4 => 0.0f64..2.0,
+            1 => Just(0.0),
+            1 => Just(f64::NAN),
+            1 => Just(f64::INFINITY),
+            1 => Just(-1.0),
+        ];
+        prop_oneof![
+            6 => proptest::collection::vec(value.clone(), n..=n).prop_map(Some),
+            1 => Just(None),
+            1 => proptest::collection::vec(value, 0..5).prop_map(Some),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn any_input_gives_a_consistent_estimate_or_flags(
+            lik in (arb_entry(2), arb_entry(3), arb_entry(2)).prop_map(|(a, b, c)| vec![a, b, c]),
+            consonant in any::<bool>(),
+            threshold in prop_oneof![Just(f64::INFINITY), 0.0f64..3.0],
+            policy in 0usize..3,
+        ) {
+            let constructor = if consonant { crate::evidence::Constructor::Consonant } else { crate::evidence::Constructor::Bayesian };
+            let selection = match policy {
+                0 => SelectionPolicy::LargestSubset,
+                1 => SelectionPolicy::LowestConflict { min_size: 2 },
+                _ => SelectionPolicy::Splitting { min_size: 2 },
+            };
+            let base = tiny_tracker(constructor);
+            let settings = TrackSettings { constructor, conflict_threshold: threshold, selection, ..TrackSettings::default() };
+            let t = Tracker::new(base.model().clone(), settings.check().unwrap()).unwrap();
+            let est = t.track(&lik).unwrap();
+            let usable = lik.iter().enumerate().filter(|(i, _)| !est.flags.unusable.iter().any(|(f, _)| f == i)).count();
+            match est.estimate {
+                None => {
+                    prop_assert!(est.flags.no_usable_feature);
+                    prop_assert_eq!(usable, 0);
+                }
+                Some(e) => {
+                    prop_assert!(usable > 0);
+                    prop_assert!(e[0] >= 0.0 && e[0] <= 5.0 && e[1] == 0.0, "{:?}", e);
+                    let k = est.conflict_level.unwrap();
+                    prop_assert!(k.is_finite() && k >= 0.0);
+                    let sum: f64 = est.plausibility.iter().sum();
+                    prop_assert!((sum - 1.0).abs() < 1e-12);
+                    prop_assert!(!est.group.is_empty());
+                    prop_assert_eq!(est.group.len() + est.flags.excluded.len(), usable);
+                    let u = est.uncertainty.unwrap();
+                    prop_assert!(u.radius >= 0.0 && u.radius <= 5.0 && u.spread <= 5.0);
+                }
+            }
         }
     }
 }
