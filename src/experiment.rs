@@ -12,6 +12,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
+use crate::evidence::ConflictLevel;
 use crate::features::FeatureConfig;
 use crate::model::EvidentialModel;
 use crate::report::{distance, ErrorStats};
@@ -200,8 +201,8 @@ pub struct RunSummary {
     pub states: Vec<usize>,
     /// Belief-function constructor.
     pub constructor: String,
-    /// Conflict threshold used.
-    pub conflict_threshold: f64,
+    /// Conflict threshold used (`"inf"` in JSON when every compatible pair is combined).
+    pub conflict_threshold: ConflictLevel,
     /// Whether it was learned on the validation motion.
     pub threshold_learned: bool,
     /// Error statistics over every test frame with an estimate.
@@ -536,8 +537,9 @@ pub fn run(
             }
             let threshold = track::learn_conflict_threshold(&levels, &errors)
                 .map_err(|e| ExperimentError::Track(e.to_string()))?;
+            // +∞ (no finite level to learn from) is stored as "no threshold".
             model
-                .set_conflict_threshold(Some(threshold))
+                .set_conflict_threshold(threshold.is_finite().then_some(threshold))
                 .map_err(train_error)?;
             track_settings.conflict_threshold = threshold;
         }
@@ -591,7 +593,11 @@ pub fn run(
         features: names.clone(),
         states: model.features().iter().map(|f| f.frame_size()).collect(),
         constructor: format!("{:?}", track_settings.constructor).to_lowercase(),
-        conflict_threshold: track_settings.conflict_threshold,
+        conflict_threshold: if track_settings.conflict_threshold.is_finite() {
+            ConflictLevel::Finite(track_settings.conflict_threshold)
+        } else {
+            ConflictLevel::Infinite
+        },
         threshold_learned: scenario.learn_threshold && validation.is_some(),
         error: ErrorStats::from_errors(&errors),
         per_motion,

@@ -850,7 +850,7 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
             s.samples.to_string(),
             states.join(" "),
             s.constructor.clone(),
-            s.conflict_threshold.to_string(),
+            s.conflict_threshold.value().to_string(),
             num(s.error.map(|e| e.mean)),
             num(s.error.map(|e| e.median)),
             num(s.error.map(|e| e.rms)),

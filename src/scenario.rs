@@ -441,7 +441,10 @@ states = [2, 2, 2, 3, 3, 2]
         let error = ScenarioSet::parse("nmae = \"x\"\n", "t.toml")
             .unwrap_err()
             .to_string();
-        assert!(error.contains("line 1") && error.contains("nmae"), "{error}");
+        assert!(
+            error.contains("line 1") && error.contains("nmae"),
+            "{error}"
+        );
     }
 
     #[test]
@@ -481,14 +484,21 @@ states = [2, 2, 2, 3, 3, 2]
 
     #[test]
     fn bad_variants_name_the_variant_and_the_problem() {
-        let typo = format!("{BASE}\n[[sweep.variant]]\nname = \"x\"\nset = {{ \"model.stats\" = 3 }}\n");
+        let typo =
+            format!("{BASE}\n[[sweep.variant]]\nname = \"x\"\nset = {{ \"model.stats\" = 3 }}\n");
         let error = ScenarioSet::parse(&typo, "t.toml").unwrap_err().to_string();
         assert!(error.contains("`x`") && error.contains("stats"), "{error}");
-        let twice = format!("{BASE}\n[[sweep.variant]]\nname = \"x\"\n[[sweep.variant]]\nname = \"x\"\n");
-        let error = ScenarioSet::parse(&twice, "t.toml").unwrap_err().to_string();
+        let twice =
+            format!("{BASE}\n[[sweep.variant]]\nname = \"x\"\n[[sweep.variant]]\nname = \"x\"\n");
+        let error = ScenarioSet::parse(&twice, "t.toml")
+            .unwrap_err()
+            .to_string();
         assert!(error.contains("two variants"), "{error}");
-        let through_value = format!("{BASE}\n[[sweep.variant]]\nname = \"y\"\nset = {{ \"seed.x\" = 1 }}\n");
-        let error = ScenarioSet::parse(&through_value, "t.toml").unwrap_err().to_string();
+        let through_value =
+            format!("{BASE}\n[[sweep.variant]]\nname = \"y\"\nset = {{ \"seed.x\" = 1 }}\n");
+        let error = ScenarioSet::parse(&through_value, "t.toml")
+            .unwrap_err()
+            .to_string();
         assert!(error.contains("not a table"), "{error}");
     }
 
@@ -516,8 +526,8 @@ states = [2, 2, 2, 3, 3, 2]
         for entry in std::fs::read_dir(dir).unwrap() {
             let path = entry.unwrap().path();
             if path.extension().is_some_and(|e| e == "toml") {
-                let set = ScenarioSet::load(&path)
-                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let set =
+                    ScenarioSet::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
                 assert!(!set.variants.is_empty());
                 count += 1;
             }

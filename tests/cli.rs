@@ -189,3 +189,250 @@ fn features_writes_one_named_column_per_feature_plus_truth() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("manifest.json"));
 }
+
+#[test]
+fn train_then_track_reports_errors_and_refuses_broken_models() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let sample = r#"kind = "mesh", spacing = 2.0"#;
+    let out = evitrack(
+        &["simulate", "--out", &path("sample"), "--motion", sample],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let test = r#"kind = "circle", radius = 5, speed = 10, duration = 2, fps = 10"#;
+    let out = evitrack(
+        &[
+            "simulate",
+            "--out",
+            &path("test"),
+            "--motion",
+            test,
+            "--seed",
+            "3",
+        ],
+        "",
+    );
+    assert!(out.status.success());
+    let out = evitrack(
+        &[
+            "train",
+            &path("sample"),
+            "--out",
+            &path("model.json"),
+            "--barycentre",
+            "--states",
+            "3",
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("barycentre_y") && table.contains("log-likelihood"),
+        "{table}"
+    );
+    let out = evitrack(
+        &[
+            "track",
+            &path("test"),
+            "--model",
+            &path("model.json"),
+            "--out",
+            &path("est.csv"),
+        ],
+        "",
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("error mean"), "{stderr}");
+    let estimates = std::fs::read_to_string(path("est.csv")).unwrap();
+    assert_eq!(estimates.lines().count(), 21, "header + 20 frames");
+    // A wrong state list, and a corrupted model file, are clear errors.
+    let out = evitrack(
+        &[
+            "train",
+            &path("sample"),
+            "--out",
+            &path("m2.json"),
+            "--states",
+            "2,2",
+        ],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("2 counts for 6 features"));
+    std::fs::write(
+        path("broken.json"),
+        "{\"format_version\": 1, \"sample_poses\": [",
+    )
+    .unwrap();
+    let out = evitrack(
+        &["track", &path("test"), "--model", &path("broken.json")],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("broken.json"));
+}
+
+#[test]
+fn run_writes_results_table_model_and_plot() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("small.toml");
+    std::fs::write(
+        &scenario,
+        r#"
+name = "small"
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+[[tests]]
+kind = "circle"
+radius = 4.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+[expect]
+max_mean_error = 8.0
+"#,
+    )
+    .unwrap();
+    let out_dir = dir.path().join("out");
+    let out = evitrack(
+        &[
+            "run",
+            scenario.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("small") && table.contains("mean"), "{table}");
+    for file in [
+        "results.json",
+        "frames.csv",
+        "model.json",
+        "track-test0-circle.png",
+    ] {
+        assert!(out_dir.join("small").join(file).is_file(), "{file} missing");
+    }
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("small/results.json")).unwrap())
+            .unwrap();
+    assert_eq!(results["frames"], 20);
+    assert_eq!(results["conflict_threshold"], "inf");
+    // A typo in the scenario is an error with its line.
+    std::fs::write(
+        &scenario,
+        "name = \"x\"\n[track]\nconstructer = \"bayesian\"\n",
+    )
+    .unwrap();
+    let out = evitrack(&["run", scenario.to_str().unwrap()], "");
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("line 3") && stderr.contains("constructer"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn sweep_check_fails_on_regression_and_shards_merge() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("grid.toml");
+    std::fs::write(
+        &scenario,
+        r#"
+name = "grid"
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+[[tests]]
+kind = "circle"
+radius = 4.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+[expect]
+max_mean_error = 0.001
+[sweep.grid]
+"model.states" = [2, 3, 4]
+"#,
+    )
+    .unwrap();
+    let out_dir = dir.path().join("out");
+    let (scenario, out_text) = (scenario.to_str().unwrap(), out_dir.to_str().unwrap());
+    let out = evitrack(&["sweep", scenario, "--out", out_text, "--check"], "");
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "an impossible expectation regresses"
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("grid-states=3") && stderr.contains("exceeds"),
+        "{stderr}"
+    );
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 3);
+    for file in [
+        "sweep.json",
+        "sweep.csv",
+        "sweep-errors.png",
+        "sweep-states.png",
+    ] {
+        assert!(out_dir.join(file).is_file(), "{file} missing");
+    }
+    // Two shards cover the three variants; merged, they give the same numbers.
+    let mut shard_files = Vec::new();
+    for shard in ["1/2", "2/2"] {
+        let out = evitrack(
+            &["sweep", scenario, "--out", out_text, "--shard", shard],
+            "",
+        );
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let i = &shard[..1];
+        shard_files.push(out_dir.join(format!("sweep-shard-{i}-of-2.json")));
+    }
+    let merged_dir = dir.path().join("merged");
+    let mut args = vec!["merge"];
+    args.extend(shard_files.iter().map(|p| p.to_str().unwrap()));
+    args.extend(["--out", merged_dir.to_str().unwrap()]);
+    let out = evitrack(&args, "");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let read = |p: std::path::PathBuf| -> Vec<serde_json::Value> {
+        let mut rows: Vec<serde_json::Value> =
+            serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
+        for row in &mut rows {
+            row["timings"] = serde_json::Value::Null;
+        }
+        rows.sort_by_key(|r| r["scenario"].as_str().unwrap().to_string());
+        rows
+    };
+    assert_eq!(
+        read(merged_dir.join("sweep.json")),
+        read(out_dir.join("sweep.json"))
+    );
+    let out = evitrack(&["sweep", scenario, "--shard", "3/2"], "");
+    assert_eq!(out.status.code(), Some(2));
+}
