@@ -266,6 +266,9 @@ pub struct RunOutput {
     pub records: Vec<FrameRecord>,
     /// The trained model (with its learned threshold, if any).
     pub model: EvidentialModel,
+    /// For each sample pose of the model, the adaptive round that added it (0: the initial
+    /// trajectory).
+    pub sample_rounds: Vec<usize>,
 }
 
 /// Receives progress: stage name, done, total.
@@ -428,15 +431,26 @@ pub fn run(
     // The adaptive sample trajectory (§3.1): the model's features say where samples are
     // missing, the world renders them.
     let mut adaptive_added = 0;
+    let mut sample_rounds = vec![0; poses.len()];
     if let Some(adaptive) = &scenario.sample.adaptive {
         let clock = Instant::now();
         let mut round = 0usize;
         let mut measured_truth: Vec<[f64; 2]> = Vec::new();
+        let workspace = sim.geometry.workspace;
         let outcome = crate::adaptive::refine(poses.clone(), sample_rows, adaptive, |points| {
             round += 1;
-            let motion = Motion::Points {
-                points: points.to_vec(),
-            };
+            // Midpoints of boundary samples can lie a few µm outside the workspace, because the
+            // samples are simulated (not commanded) poses: clamp them back in.
+            let points = points
+                .iter()
+                .map(|p| {
+                    [
+                        p[0].clamp(workspace.x_min, workspace.x_max),
+                        p[1].clamp(workspace.y_min, workspace.y_max),
+                    ]
+                })
+                .collect();
+            let motion = Motion::Points { points };
             let seed = derive_seed(seed, &format!("adaptive{round}"));
             let data =
                 crate::sim::simulate(sim, &motion, seed, &mut |d, t| progress("adaptive", d, t))
@@ -449,6 +463,9 @@ pub fn run(
             message: e.to_string(),
         })?;
         adaptive_added = outcome.added().len();
+        for (round, &count) in outcome.added_per_round.iter().enumerate() {
+            sample_rounds.extend(std::iter::repeat_n(round + 1, count));
+        }
         poses.extend(measured_truth);
         sample_rows = outcome.features;
         timings.simulate += clock.elapsed().as_secs_f64();
@@ -614,6 +631,7 @@ pub fn run(
         summary,
         records,
         model,
+        sample_rounds,
     })
 }
 
@@ -657,7 +675,8 @@ fn write_error(path: &std::path::Path, error: impl std::fmt::Display) -> Experim
     }
 }
 
-/// Writes a run's outputs into `dir`: `results.json`, `frames.csv`, `model.json` and one
+/// Writes a run's outputs into `dir`: `results.json`, `frames.csv`, `samples.csv` (the sample
+/// poses and the adaptive round that added each), `model.json` and one
 /// `track-<motion>.png` per test motion (true against estimated positions, like the paper's
 /// Figure 2). Returns the files written.
 pub fn write_run(
@@ -714,6 +733,22 @@ pub fn write_run(
     }
     csv.flush().map_err(|e| write_error(&frames, e))?;
     written.push(frames);
+
+    let samples = dir.join("samples.csv");
+    let mut csv = csv::Writer::from_path(&samples).map_err(|e| write_error(&samples, e))?;
+    csv.write_record(["x", "y", "added_in_round"])
+        .map_err(|e| write_error(&samples, e))?;
+    for (pose, round) in output
+        .model
+        .sample_poses()
+        .iter()
+        .zip(&output.sample_rounds)
+    {
+        csv.write_record([pose[0].to_string(), pose[1].to_string(), round.to_string()])
+            .map_err(|e| write_error(&samples, e))?;
+    }
+    csv.flush().map_err(|e| write_error(&samples, e))?;
+    written.push(samples);
 
     let model = dir.join("model.json");
     output

@@ -345,7 +345,8 @@ impl ScenarioSet {
     }
 }
 
-/// The cartesian product of a grid, each point a variant named `key=value,...`.
+/// The cartesian product of a grid, each point a variant named `key=value,...` (the key without
+/// its first segment).
 fn grid_variants(grid: &BTreeMap<String, Vec<toml::Value>>) -> Vec<VariantSpec> {
     if grid.is_empty() {
         return Vec::new();
@@ -355,7 +356,8 @@ fn grid_variants(grid: &BTreeMap<String, Vec<toml::Value>>) -> Vec<VariantSpec> 
         set: BTreeMap::new(),
     }];
     for (path, values) in grid {
-        let short = path.rsplit('.').next().unwrap_or(path);
+        // The path without its room (`noise.sigma`, `states`) names the value.
+        let short = path.split_once('.').map_or(path.as_str(), |(_, rest)| rest);
         points = points
             .into_iter()
             .flat_map(|point| {
@@ -376,12 +378,12 @@ fn grid_variants(grid: &BTreeMap<String, Vec<toml::Value>>) -> Vec<VariantSpec> 
     points
 }
 
-/// A value as a short label for variant names (arrays joined with `_`).
+/// A value as a short label for variant names (array items and table values joined with `_`).
 fn compact(value: &toml::Value) -> String {
     match value {
         toml::Value::String(s) => s.clone(),
         toml::Value::Array(items) => items.iter().map(compact).collect::<Vec<_>>().join("_"),
-        toml::Value::Table(_) => "table".into(),
+        toml::Value::Table(table) => table.values().map(compact).collect::<Vec<_>>().join("_"),
         other => other.to_string(),
     }
 }
@@ -477,9 +479,17 @@ states = [2, 2, 2, 3, 3, 2]
         let set = ScenarioSet::parse(&text, "t.toml").unwrap();
         assert_eq!(set.variants.len(), 6);
         let names: Vec<&str> = set.variants.iter().map(|v| v.name.as_str()).collect();
-        assert!(names.contains(&"t-states=3,sigma=4.0"), "{names:?}");
+        assert!(names.contains(&"t-states=3,noise.sigma=4.0"), "{names:?}");
+
         let sigmas: Vec<f64> = set.variants.iter().map(|v| v.sim.noise.sigma).collect();
         assert_eq!(sigmas, [0.0, 2.0, 4.0, 0.0, 2.0, 4.0]);
+        let tables = format!(
+            "{BASE}\n[sweep.grid]\n\"sample.motion\" = [{{ kind = \"mesh\", spacing = 1.0 }}, \
+             {{ kind = \"mesh\", spacing = 0.5 }}]\n"
+        );
+        let set = ScenarioSet::parse(&tables, "t.toml").unwrap();
+        let names: Vec<&str> = set.variants.iter().map(|v| v.name.as_str()).collect();
+        assert_eq!(names, ["t-motion=mesh_1.0", "t-motion=mesh_0.5"]);
     }
 
     #[test]

@@ -106,3 +106,53 @@ fn built_in_default_is_the_papers_setup_a() {
     default.expect = Default::default();
     assert_eq!(a, default);
 }
+
+#[test]
+fn adaptive_sample_trajectory_adds_rendered_samples_where_features_change() {
+    let text = r#"
+name = "adaptive"
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+adaptive = { threshold = 0.1, max_samples = 160, max_rounds = 3 }
+[features.barycentre]
+enabled = true
+[model]
+states = 4
+[[tests]]
+kind = "circle"
+radius = 5.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+"#;
+    let set = ScenarioSet::parse(text, "adaptive.toml").unwrap();
+    let output = evitrack::experiment::run(&set.base, &Workbench::new(), &mut |_, _, _| {})
+        .expect("the adaptive run succeeds");
+    let summary = &output.summary;
+    assert_eq!(
+        summary.samples,
+        100 + summary.adaptive_added,
+        "a 2 mm mesh has 100 nodes"
+    );
+    assert!(summary.adaptive_added > 0 && summary.samples <= 160);
+    let poses = output.model.sample_poses();
+    assert_eq!(output.sample_rounds.len(), poses.len());
+    assert!(output.sample_rounds[..100].iter().all(|&r| r == 0));
+    assert!(output.sample_rounds[100..]
+        .iter()
+        .all(|&r| (1..=3).contains(&r)));
+    // Added samples are simulated poses inside the workspace, off the initial 2 mm mesh.
+    for p in &poses[100..] {
+        assert!(
+            (-9.5..=9.5).contains(&p[0]) && (38.0..=57.0).contains(&p[1]),
+            "{p:?}"
+        );
+        let on_mesh =
+            |v: f64, origin: f64| ((v - origin) / 2.0 - ((v - origin) / 2.0).round()).abs() < 1e-3;
+        assert!(
+            !(on_mesh(p[0], -9.5) && on_mesh(p[1], 38.0)),
+            "{p:?} is a mesh node"
+        );
+    }
+    assert!(summary.error.is_some());
+}
