@@ -88,8 +88,17 @@ struct SimulateArgs {
     /// The motion as an inline TOML table, e.g.
     /// 'kind = "lissajous", freq_x = 0.3, freq_y = 0.2, duration = 10, fps = 10'.
     /// Default: the 1 mm mesh of the sample trajectory (400 nodes).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "scenario")]
     motion: Option<String>,
+    /// Simulate a motion of this scenario file instead, with its rig and the seed its run
+    /// uses, so the dataset is the one `run` trains or tests on (`--seed`/`--noise-free` are
+    /// ignored).
+    #[arg(long)]
+    scenario: Option<PathBuf>,
+    /// Which of the scenario's motions: `sample`, `validation` or `test` (`test1`, … for later
+    /// test motions).
+    #[arg(long, default_value = "sample", requires = "scenario")]
+    part: String,
     #[command(flatten)]
     sim: SimArgs,
 }
@@ -280,15 +289,54 @@ fn fresh_dir(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The rig, motion and seed of one part of a scenario, as `run` simulates it.
+fn scenario_part(path: &Path, part: &str) -> Result<(SimSettings, Motion, u64)> {
+    let scenario = ScenarioSet::load(path)?.base;
+    let (motion, stream) = match part {
+        "sample" => (scenario.sample.motion.clone(), "sample".to_string()),
+        "validation" => (
+            scenario
+                .validation
+                .clone()
+                .with_context(|| format!("{} has no validation motion", path.display()))?,
+            "validation".to_string(),
+        ),
+        test if test.starts_with("test") => {
+            let index: usize = match &test[4..] {
+                "" => 0,
+                digits => digits
+                    .parse()
+                    .with_context(|| format!("--part `{test}`: expected test, test1, test2, …"))?,
+            };
+            let motion = scenario.tests.get(index).cloned().with_context(|| {
+                format!(
+                    "{} has {} test motion(s): use --part test … test{}",
+                    path.display(),
+                    scenario.tests.len(),
+                    scenario.tests.len().saturating_sub(1)
+                )
+            })?;
+            (motion, format!("test{index}"))
+        }
+        other => bail!("--part `{other}` must be sample, validation or test[N]"),
+    };
+    let seed = experiment::derive_seed(scenario.seed, &stream);
+    Ok((scenario.sim, motion, seed))
+}
+
 fn simulate(args: &SimulateArgs) -> Result<ExitCode> {
-    let motion = match &args.motion {
-        Some(text) => parse_motion(text)?,
-        None => Motion::Mesh { spacing: 1.0 },
+    let (settings, motion, seed) = match (&args.scenario, &args.motion) {
+        (Some(path), _) => scenario_part(path, &args.part)?,
+        (None, Some(text)) => (args.sim.settings(), parse_motion(text)?, args.sim.seed),
+        (None, None) => (
+            args.sim.settings(),
+            Motion::Mesh { spacing: 1.0 },
+            args.sim.seed,
+        ),
     };
     fresh_dir(&args.out)?;
-    let settings = args.sim.settings();
     let bar = progress_bar("simulate");
-    let dataset = sim::simulate(&settings, &motion, args.sim.seed, &mut |done, total| {
+    let dataset = sim::simulate(&settings, &motion, seed, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })?;

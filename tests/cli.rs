@@ -436,3 +436,65 @@ max_mean_error = 0.001
     let out = evitrack(&["sweep", scenario, "--shard", "3/2"], "");
     assert_eq!(out.status.code(), Some(2));
 }
+
+#[test]
+fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
+    use evitrack::experiment::{derive_seed, Workbench};
+    let dir = tempfile::tempdir().unwrap();
+    let scenario_path = dir.path().join("s.toml");
+    std::fs::write(
+        &scenario_path,
+        "name = \"s\"\nseed = 9\n[[tests]]\nkind = \"circle\"\nradius = 3.0\nspeed = 5.0\n\
+         duration = 1.0\nfps = 5.0\n",
+    )
+    .unwrap();
+    let out_dir = dir.path().join("test0");
+    let out = evitrack(
+        &[
+            "simulate",
+            "--scenario",
+            scenario_path.to_str().unwrap(),
+            "--part",
+            "test",
+            "--out",
+            out_dir.to_str().unwrap(),
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let written = evitrack::dataset::Dataset::read(&out_dir).unwrap();
+    let scenario = evitrack::scenario::ScenarioSet::load(&scenario_path)
+        .unwrap()
+        .base;
+    let in_run = Workbench::new()
+        .dataset(
+            &scenario.sim,
+            &scenario.tests[0],
+            derive_seed(9, "test0"),
+            &mut |_, _| {},
+        )
+        .unwrap();
+    assert_eq!(written.len(), 5);
+    for (a, b) in written.frames.iter().zip(&in_run.frames) {
+        assert_eq!(a.image, b.image);
+        assert_eq!(a.truth, b.truth);
+    }
+    let out = evitrack(
+        &[
+            "simulate",
+            "--scenario",
+            scenario_path.to_str().unwrap(),
+            "--part",
+            "test4",
+            "--out",
+            dir.path().join("x").to_str().unwrap(),
+        ],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("1 test motion(s)"));
+}
