@@ -16,7 +16,7 @@ use evitrack::model::{EvidentialModel, ModelSettings, StateCounts, Tuning};
 use evitrack::report::{self, ErrorStats, Table};
 use evitrack::scenario::ScenarioSet;
 use evitrack::sim::{self, Motion, NoiseSettings, SimSettings};
-use evitrack::track::TrackSettings;
+use evitrack::track::{Estimator, SelectionPolicy, TrackSettings};
 
 /// Evidential (Dempster–Shafer) pose tracking on a simulated five-bar robot.
 #[derive(Debug, Parser)]
@@ -178,8 +178,7 @@ struct TrackArgs {
     /// Model file written by `train` (or by `run`).
     #[arg(long)]
     model: PathBuf,
-    /// Output CSV of per-frame estimates (default: estimates.csv beside nothing — standard
-    /// output).
+    /// Output CSV of per-frame estimates (default: standard output).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Belief-function constructor.
@@ -189,6 +188,42 @@ struct TrackArgs {
     /// learned into the model; `inf` when it has none).
     #[arg(long, default_value = "model")]
     threshold: String,
+    /// Which compatible group to combine: `largest`, `lowest:N` (lowest conflict among groups of
+    /// at least N features) or `split:N` (every group of at least N; the first is reported).
+    #[arg(long, default_value = "largest")]
+    selection: String,
+    /// Pointwise estimate from the combined belief function.
+    #[arg(long, value_enum, default_value = "weighted-mean")]
+    estimator: EstimatorArg,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum EstimatorArg {
+    /// Σ Pl(q) q over the sample poses, with relative plausibilities.
+    WeightedMean,
+    /// The sample pose of highest plausibility.
+    Map,
+    /// Σ BetP(q) q with the pignistic probability.
+    Pignistic,
+}
+
+fn parse_selection(text: &str) -> Result<SelectionPolicy> {
+    let min_size = |n: &str| {
+        n.parse::<usize>()
+            .ok()
+            .filter(|&n| n >= 1)
+            .with_context(|| format!("--selection `{text}`: N must be a whole number ≥ 1"))
+    };
+    Ok(match text.split_once(':') {
+        None if text == "largest" => SelectionPolicy::LargestSubset,
+        Some(("lowest", n)) => SelectionPolicy::LowestConflict {
+            min_size: min_size(n)?,
+        },
+        Some(("split", n)) => SelectionPolicy::Splitting {
+            min_size: min_size(n)?,
+        },
+        _ => bail!("--selection `{text}` must be `largest`, `lowest:N` or `split:N`"),
+    })
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -702,6 +737,12 @@ fn track_dataset(args: &TrackArgs) -> Result<ExitCode> {
         constructor: match args.constructor {
             ConstructorArg::Bayesian => Constructor::Bayesian,
             ConstructorArg::Consonant => Constructor::Consonant,
+        },
+        selection: parse_selection(&args.selection)?,
+        estimator: match args.estimator {
+            EstimatorArg::WeightedMean => Estimator::WeightedMean,
+            EstimatorArg::Map => Estimator::Map,
+            EstimatorArg::Pignistic => Estimator::Pignistic,
         },
         ..TrackSettings::default()
     };

@@ -256,6 +256,42 @@ fn train_then_track_reports_errors_and_refuses_broken_models() {
     assert!(stderr.contains("error mean"), "{stderr}");
     let estimates = std::fs::read_to_string(path("est.csv")).unwrap();
     assert_eq!(estimates.lines().count(), 21, "header + 20 frames");
+    let out = evitrack(
+        &[
+            "track",
+            &path("test"),
+            "--model",
+            &path("model.json"),
+            "--out",
+            &path("map.csv"),
+            "--estimator",
+            "map",
+            "--selection",
+            "split:2",
+            "--constructor",
+            "consonant",
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_ne!(std::fs::read_to_string(path("map.csv")).unwrap(), estimates);
+    let out = evitrack(
+        &[
+            "track",
+            &path("test"),
+            "--model",
+            &path("model.json"),
+            "--selection",
+            "split:0",
+        ],
+        "",
+    );
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("N must be"));
     // A wrong state list, and a corrupted model file, are clear errors.
     let out = evitrack(
         &[
