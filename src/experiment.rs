@@ -342,6 +342,8 @@ fn truths(dataset: &Dataset, what: &str) -> Result<Vec<[f64; 2]>, ExperimentErro
         .ok_or_else(|| ExperimentError::NoTruth(what.to_string()))
 }
 
+/// Mean distance of the estimates to the truth; +∞ when no frame has an estimate (so such a
+/// candidate ranks last).
 fn mean_error(estimates: &[FrameEstimate], truth: &[[f64; 2]]) -> f64 {
     let errors: Vec<f64> = estimates
         .iter()
@@ -379,18 +381,12 @@ impl crate::model::StateCountTuner for ValidationTuner<'_> {
         )?;
         let checked = self.settings.clone().check()?;
         let tracker = Tracker::new(tracker_model, checked)?;
-        let mut errors = Vec::with_capacity(self.rows.len());
-        for (row, truth) in self.rows.iter().zip(self.truth) {
-            let estimate = tracker.track(&[candidate.likelihoods(row[feature])])?;
-            if let Some(p) = estimate.estimate {
-                errors.push(distance(p, *truth));
-            }
-        }
-        Ok(if errors.is_empty() {
-            f64::INFINITY
-        } else {
-            errors.iter().sum::<f64>() / errors.len() as f64
-        })
+        let estimates = self
+            .rows
+            .iter()
+            .map(|row| tracker.track(&[candidate.likelihoods(row[feature])]))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(mean_error(&estimates, self.truth))
     }
 }
 
