@@ -72,6 +72,27 @@ pub fn derive_seed(master: u64, stream: &str) -> u64 {
     z ^ (z >> 31)
 }
 
+/// A part of a scenario that is simulated on its own seed stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Part {
+    /// The sample trajectory.
+    Sample,
+    /// The validation motion.
+    Validation,
+    /// The test motion of this index.
+    Test(usize),
+}
+
+/// The seed a run simulates `part` with, derived from the scenario's master seed; `simulate
+/// --scenario` uses it too, so both produce the same dataset.
+pub fn part_seed(master: u64, part: Part) -> u64 {
+    match part {
+        Part::Sample => derive_seed(master, "sample"),
+        Part::Validation => derive_seed(master, "validation"),
+        Part::Test(k) => derive_seed(master, &format!("test{k}")),
+    }
+}
+
 type Shared<T> = Arc<OnceLock<Result<Arc<T>, String>>>;
 
 /// Feature values of a dataset's frames, one row per frame.
@@ -184,6 +205,75 @@ pub struct FrameRecord {
     pub flags: String,
 }
 
+impl FrameRecord {
+    /// The record of one tracked frame; `names` are the model's feature names.
+    pub fn new(
+        motion: &str,
+        frame: usize,
+        t: f64,
+        truth: Option<[f64; 2]>,
+        estimate: &FrameEstimate,
+        names: &[String],
+    ) -> Self {
+        Self {
+            motion: motion.to_string(),
+            frame,
+            t,
+            truth,
+            estimate: estimate.estimate,
+            error: estimate.estimate.zip(truth).map(|(e, t)| distance(e, t)),
+            group: estimate.group.clone(),
+            conflict_level: estimate.conflict_level,
+            uncertainty_radius: estimate.uncertainty.map(|u| u.radius),
+            flags: frame_flags(estimate, names),
+        }
+    }
+}
+
+/// Writes frame records as CSV (the `frames.csv` of a run, and what `track` prints): one row per
+/// frame, the combined group as feature names joined by `+`, empty cells for missing values.
+pub fn write_frames_csv<W: std::io::Write>(
+    writer: W,
+    records: &[FrameRecord],
+    names: &[String],
+) -> Result<(), csv::Error> {
+    let mut csv = csv::Writer::from_writer(writer);
+    csv.write_record([
+        "motion",
+        "frame",
+        "t",
+        "true_x",
+        "true_y",
+        "est_x",
+        "est_y",
+        "error",
+        "group",
+        "conflict_level",
+        "uncertainty_radius",
+        "flags",
+    ])?;
+    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
+    for r in records {
+        let group: Vec<&str> = r.group.iter().map(|&g| names[g].as_str()).collect();
+        csv.write_record([
+            r.motion.clone(),
+            r.frame.to_string(),
+            r.t.to_string(),
+            num(r.truth.map(|p| p[0])),
+            num(r.truth.map(|p| p[1])),
+            num(r.estimate.map(|p| p[0])),
+            num(r.estimate.map(|p| p[1])),
+            num(r.error),
+            group.join("+"),
+            num(r.conflict_level),
+            num(r.uncertainty_radius),
+            r.flags.clone(),
+        ])?;
+    }
+    csv.flush()?;
+    Ok(())
+}
+
 /// What a run measured, small enough to print, store as JSON and compare across runs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunSummary {
@@ -275,7 +365,7 @@ pub struct RunOutput {
 pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 
 /// The flags of a tracked frame as short words (`missing:…`, `excluded:…`, `fallback`,
-/// `no_estimate`); empty when the frame is clean.
+/// `combination_failed`, `no_estimate`); empty when the frame is clean.
 pub fn frame_flags(estimate: &FrameEstimate, names: &[String]) -> String {
     let flags = &estimate.flags;
     let mut parts = Vec::new();
@@ -290,7 +380,10 @@ pub fn frame_flags(estimate: &FrameEstimate, names: &[String]) -> String {
     if flags.fallback {
         parts.push("fallback".into());
     }
-    if flags.no_usable_feature {
+    if flags.combination_failed {
+        parts.push("combination_failed".into());
+    }
+    if estimate.estimate.is_none() {
         parts.push("no_estimate".into());
     }
     parts.join(" ")
@@ -342,19 +435,23 @@ fn truths(dataset: &Dataset, what: &str) -> Result<Vec<[f64; 2]>, ExperimentErro
         .ok_or_else(|| ExperimentError::NoTruth(what.to_string()))
 }
 
-/// Mean distance of the estimates to the truth; +∞ when no frame has an estimate (so such a
-/// candidate ranks last).
-fn mean_error(estimates: &[FrameEstimate], truth: &[[f64; 2]]) -> f64 {
-    let errors: Vec<f64> = estimates
+/// Mean distance of the estimates to the truth, a frame without an estimate counting as
+/// `penalty` (the workspace diagonal), so a feature that rarely gives an estimate ranks low and
+/// the score stays finite.
+fn validation_error(estimates: &[FrameEstimate], truth: &[[f64; 2]], penalty: f64) -> f64 {
+    let total: f64 = estimates
         .iter()
         .zip(truth)
-        .filter_map(|(e, t)| e.estimate.map(|p| distance(p, *t)))
-        .collect();
-    if errors.is_empty() {
-        f64::INFINITY
-    } else {
-        errors.iter().sum::<f64>() / errors.len() as f64
-    }
+        .map(|(e, t)| e.estimate.map_or(penalty, |p| distance(p, *t)))
+        .sum();
+    total / truth.len().max(1) as f64
+}
+
+/// The penalty of a frame without an estimate: the workspace diagonal, the largest error an
+/// estimate inside the workspace can have.
+fn missing_penalty(sim: &SimSettings) -> f64 {
+    let w = sim.geometry.workspace;
+    (w.x_max - w.x_min).hypot(w.y_max - w.y_min)
 }
 
 /// Scores candidate state counts by the tracking error of the candidate feature alone on the
@@ -363,6 +460,7 @@ struct ValidationTuner<'a> {
     rows: &'a [Vec<Option<f64>>],
     truth: &'a [[f64; 2]],
     settings: &'a TrackSettings,
+    penalty: f64,
 }
 
 impl crate::model::StateCountTuner for ValidationTuner<'_> {
@@ -386,7 +484,7 @@ impl crate::model::StateCountTuner for ValidationTuner<'_> {
             .iter()
             .map(|row| tracker.track(&[candidate.likelihoods(row[feature])]))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(mean_error(&estimates, self.truth))
+        Ok(validation_error(&estimates, self.truth, self.penalty))
     }
 }
 
@@ -410,7 +508,7 @@ pub fn run(
 
     // The sample trajectory.
     let clock = Instant::now();
-    let sample_seed = derive_seed(seed, "sample");
+    let sample_seed = part_seed(seed, Part::Sample);
     let motion = &scenario.sample.motion;
     let dataset = bench.dataset(sim, motion, sample_seed, &mut |d, t| {
         progress("sample", d, t)
@@ -471,18 +569,24 @@ pub fn run(
     let validation = match &scenario.validation {
         Some(motion) => {
             let clock = Instant::now();
-            let vseed = derive_seed(seed, "validation");
+            let vseed = part_seed(seed, Part::Validation);
             let data =
                 bench.dataset(sim, motion, vseed, &mut |d, t| progress("validation", d, t))?;
-            let rows = bench.features(sim, motion, vseed, &scenario.features, &mut |_, _| {})?;
             timings.simulate += clock.elapsed().as_secs_f64();
+            let clock = Instant::now();
+            let rows = bench.features(sim, motion, vseed, &scenario.features, &mut |_, _| {})?;
+            timings.features += clock.elapsed().as_secs_f64();
             Some((truths(&data, "the validation motion")?, rows))
         }
         None => None,
     };
 
-    // Training.
+    // Training, on its own stream of the master seed (`model.seed` picks among streams).
     let clock = Instant::now();
+    let model_settings = crate::model::ModelSettings {
+        seed: derive_seed(seed, &format!("model{}", scenario.model.seed)),
+        ..scenario.model.clone()
+    };
     progress("train", 0, 1);
     let train_error = |e: crate::model::ModelError| ExperimentError::Train(e.to_string());
     let mut model = match (&scenario.model.tuning, &validation) {
@@ -491,12 +595,13 @@ pub fn run(
                 rows,
                 truth,
                 settings: &scenario.track,
+                penalty: missing_penalty(sim),
             };
             EvidentialModel::train_with_tuner(
                 &poses,
                 &names,
                 &sample_rows,
-                &scenario.model,
+                &model_settings,
                 &mut tuner,
             )
             .map_err(train_error)?
@@ -506,7 +611,7 @@ pub fn run(
                 "tuning state counts by validation error needs a [validation] motion".into(),
             ))
         }
-        _ => EvidentialModel::train(&poses, &names, &sample_rows, &scenario.model)
+        _ => EvidentialModel::train(&poses, &names, &sample_rows, &model_settings)
             .map_err(train_error)?,
     };
     progress("train", 1, 1);
@@ -529,7 +634,8 @@ pub fn run(
                         .collect()
                 })
                 .collect();
-            per_feature.push(mean_error(&track_rows(&model, &tracker, &only_i)?, truth));
+            let estimates = track_rows(&model, &tracker, &only_i)?;
+            per_feature.push(validation_error(&estimates, truth, missing_penalty(sim)));
         }
         model
             .set_validation_errors(Some(per_feature))
@@ -566,10 +672,12 @@ pub fn run(
     for (k, motion) in scenario.tests.iter().enumerate() {
         let label = format!("test{k}:{}", motion.name());
         let clock = Instant::now();
-        let tseed = derive_seed(seed, &format!("test{k}"));
+        let tseed = part_seed(seed, Part::Test(k));
         let data = bench.dataset(sim, motion, tseed, &mut |d, t| progress(&label, d, t))?;
-        let rows = bench.features(sim, motion, tseed, &scenario.features, &mut |_, _| {})?;
         timings.simulate += clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let rows = bench.features(sim, motion, tseed, &scenario.features, &mut |_, _| {})?;
+        timings.features += clock.elapsed().as_secs_f64();
         let truth = truths(&data, &label)?;
         let clock = Instant::now();
         let estimates = track_rows(&model, &tracker, &rows)?;
@@ -578,20 +686,9 @@ pub fn run(
         for (i, ((estimate, frame), t)) in
             estimates.iter().zip(&data.frames).zip(&truth).enumerate()
         {
-            let error = estimate.estimate.map(|p| distance(p, *t));
-            errors.extend(error);
-            records.push(FrameRecord {
-                motion: label.clone(),
-                frame: i,
-                t: frame.t,
-                truth: Some(*t),
-                estimate: estimate.estimate,
-                error,
-                group: estimate.group.clone(),
-                conflict_level: estimate.conflict_level,
-                uncertainty_radius: estimate.uncertainty.map(|u| u.radius),
-                flags: frame_flags(estimate, &names),
-            });
+            let record = FrameRecord::new(&label, i, frame.t, Some(*t), estimate, &names);
+            errors.extend(record.error);
+            records.push(record);
         }
         per_motion.push((label, ErrorStats::from_errors(&errors)));
     }
@@ -606,11 +703,7 @@ pub fn run(
         features: names.clone(),
         states: model.features().iter().map(|f| f.frame_size()).collect(),
         constructor: format!("{:?}", track_settings.constructor).to_lowercase(),
-        conflict_threshold: if track_settings.conflict_threshold.is_finite() {
-            ConflictLevel::Finite(track_settings.conflict_threshold)
-        } else {
-            ConflictLevel::Infinite
-        },
+        conflict_threshold: ConflictLevel::from_value(track_settings.conflict_threshold),
         threshold_learned: scenario.learn_threshold && validation.is_some(),
         error: ErrorStats::from_errors(&errors),
         per_motion,
@@ -688,46 +781,13 @@ pub fn write_run(
     written.push(results);
 
     let frames = dir.join("frames.csv");
-    let mut csv = csv::Writer::from_path(&frames).map_err(|e| write_error(&frames, e))?;
-    csv.write_record([
-        "motion",
-        "frame",
-        "t",
-        "true_x",
-        "true_y",
-        "est_x",
-        "est_y",
-        "error",
-        "group",
-        "conflict_level",
-        "uncertainty_radius",
-        "flags",
-    ])
+    let file = std::fs::File::create(&frames).map_err(|e| write_error(&frames, e))?;
+    write_frames_csv(
+        std::io::BufWriter::new(file),
+        &output.records,
+        &output.summary.features,
+    )
     .map_err(|e| write_error(&frames, e))?;
-    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
-    for r in &output.records {
-        let group: Vec<String> = r
-            .group
-            .iter()
-            .map(|g| output.summary.features[*g].clone())
-            .collect();
-        csv.write_record([
-            r.motion.clone(),
-            r.frame.to_string(),
-            r.t.to_string(),
-            num(r.truth.map(|p| p[0])),
-            num(r.truth.map(|p| p[1])),
-            num(r.estimate.map(|p| p[0])),
-            num(r.estimate.map(|p| p[1])),
-            num(r.error),
-            group.join("+"),
-            num(r.conflict_level),
-            num(r.uncertainty_radius),
-            r.flags.clone(),
-        ])
-        .map_err(|e| write_error(&frames, e))?;
-    }
-    csv.flush().map_err(|e| write_error(&frames, e))?;
     written.push(frames);
 
     let samples = dir.join("samples.csv");

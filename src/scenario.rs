@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
 use crate::features::FeatureConfig;
-use crate::model::{ModelSettings, StateCounts};
+use crate::model::{ModelSettings, StateCounts, Tuning};
 use crate::sim::{Motion, SimSettings};
 use crate::track::TrackSettings;
 
@@ -177,7 +177,8 @@ pub fn default_test_motion() -> Motion {
 }
 
 impl Scenario {
-    /// Checks the values that deserialisation cannot: ranges, consistency between sections.
+    /// Checks everything before anything runs: every section's own `check()`, the state counts
+    /// against the number of features, and the values deserialisation cannot check.
     pub fn check(&self) -> Result<(), ScenarioError> {
         let invalid = |message: String| ScenarioError::Invalid {
             scenario: self.name.clone(),
@@ -186,15 +187,60 @@ impl Scenario {
         if self.name.trim().is_empty() {
             return Err(invalid("`name` is empty: give the scenario a name".into()));
         }
-        if self
-            .name
-            .chars()
-            .any(|c| !(c.is_ascii_alphanumeric() || "-_.=,".contains(c)))
+        if self.name.starts_with('.')
+            || self
+                .name
+                .chars()
+                .any(|c| !(c.is_ascii_alphanumeric() || "-_.=,".contains(c)))
         {
             return Err(invalid(format!(
-                "name `{}` may only hold letters, digits and - _ . = , (it names an output folder)",
+                "name `{}` may only hold letters, digits and - _ . = , and may not start with `.` \
+                 (it names an output folder)",
                 self.name
             )));
+        }
+        self.sim
+            .check()
+            .map_err(|e| invalid(format!("[sim]: {e}")))?;
+        let features = self
+            .features
+            .check()
+            .map_err(|e| invalid(format!("[features]: {e}")))?;
+        self.model
+            .check()
+            .map_err(|e| invalid(format!("[model]: {e}")))?;
+        let counts = |states: &StateCounts, field: &'static str| {
+            states.resolve(features.len(), field).map_err(|e| {
+                invalid(format!(
+                    "[model]: {e} (the features are {})",
+                    features.names().join(", ")
+                ))
+            })
+        };
+        match &self.model.tuning {
+            Tuning::Given => {
+                counts(&self.model.states, "states")?;
+            }
+            Tuning::Bic {
+                min_states,
+                max_states,
+            }
+            | Tuning::Validation {
+                min_states,
+                max_states,
+            } => {
+                counts(min_states, "tuning.min_states")?;
+                counts(max_states, "tuning.max_states")?;
+            }
+        }
+        self.track
+            .clone()
+            .check()
+            .map_err(|e| invalid(format!("[track]: {e}")))?;
+        if let Some(adaptive) = &self.sample.adaptive {
+            adaptive
+                .check()
+                .map_err(|e| invalid(format!("[sample.adaptive]: {e}")))?;
         }
         if self.sample.keep_every == 0 {
             return Err(invalid("`sample.keep_every` must be at least 1".into()));
@@ -209,13 +255,19 @@ impl Scenario {
                 "`learn_threshold = true` needs a [validation] motion to learn it on".into(),
             ));
         }
-        if let Some(limit) = self.expect.max_mean_error {
-            if !(limit.is_finite() && limit > 0.0) {
-                return Err(invalid(format!(
-                    "`expect.max_mean_error` must be a positive number of mm, not {limit}"
-                )));
-            }
+        if matches!(self.model.tuning, Tuning::Validation { .. }) && self.validation.is_none() {
+            return Err(invalid(
+                "tuning state counts by validation error needs a [validation] motion".into(),
+            ));
         }
+        let positive = |value: Option<f64>, field: &str| match value {
+            Some(v) if !(v.is_finite() && v > 0.0) => Err(invalid(format!(
+                "`{field}` must be a positive number of mm, not {v}"
+            ))),
+            _ => Ok(()),
+        };
+        positive(self.expect.max_mean_error, "expect.max_mean_error")?;
+        positive(self.paper_error, "paper_error")?;
         if let Some(share) = self.expect.max_missing_share {
             if !(0.0..=1.0).contains(&share) {
                 return Err(invalid(format!(
@@ -293,8 +345,27 @@ impl ScenarioSet {
             path: source.to_string(),
             message,
         };
-        // Deserialise from the text itself so unknown fields are reported with line and column.
-        let mut base: Scenario = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        // First pass over the text itself, so unknown fields are reported with line and column.
+        let sweep = toml::from_str::<Scenario>(text)
+            .map_err(|e| parse_error(e.to_string()))?
+            .sweep;
+        // Second pass: the file's values laid over setup (a), so that a partial table (say
+        // `[model]` with only a seed) keeps the defaults of the fields it leaves out.
+        let mut file: toml::Table = toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
+        file.remove("sweep");
+        let mut table = match toml::Value::try_from(Scenario::default()) {
+            Ok(toml::Value::Table(table)) => table,
+            _ => {
+                return Err(parse_error(
+                    "the default scenario does not serialise".into(),
+                ))
+            }
+        };
+        table.remove("sweep");
+        overlay(&mut table, file);
+        let mut base: Scenario = toml::Value::Table(table.clone())
+            .try_into()
+            .map_err(|e: toml::de::Error| parse_error(e.to_string()))?;
         if base.name.is_empty() {
             // A file without a name is named after itself.
             base.name = Path::new(source)
@@ -303,10 +374,13 @@ impl ScenarioSet {
                 .unwrap_or_default();
         }
         base.check()?;
-        let sweep = std::mem::take(&mut base.sweep);
-        let mut table: toml::Table =
-            toml::from_str(text).map_err(|e| parse_error(e.to_string()))?;
-        table.remove("sweep");
+        if let Some((path, _)) = sweep.grid.iter().find(|(_, values)| values.is_empty()) {
+            return Err(ScenarioError::Variant {
+                path: source.to_string(),
+                variant: format!("grid `{path}`"),
+                message: "the list of values is empty: give at least one".into(),
+            });
+        }
         let mut specs = sweep.variant.clone();
         specs.extend(grid_variants(&sweep.grid));
         let variants = if specs.is_empty() {
@@ -388,6 +462,25 @@ fn compact(value: &toml::Value) -> String {
     }
 }
 
+/// Lays `top` over `base`: tables merge key by key, anything else replaces. A table that names
+/// its variant (`kind`, `method` or `policy`, as motions, tunings and selection policies do) is
+/// a different value, not an amendment, so it replaces too.
+fn overlay(base: &mut toml::Table, top: toml::Table) {
+    const TAGS: [&str; 3] = ["kind", "method", "policy"];
+    for (key, value) in top {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(below)), toml::Value::Table(above))
+                if !TAGS.iter().any(|tag| above.contains_key(*tag)) =>
+            {
+                overlay(below, above)
+            }
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
 /// Replaces the value at a dotted path, creating missing tables along the way.
 fn set_path(root: &mut toml::Value, path: &str, value: toml::Value) -> Result<(), String> {
     let keys: Vec<&str> = path.split('.').collect();
@@ -431,6 +524,25 @@ states = [2, 2, 2, 3, 3, 2]
         assert_eq!(set.base.seed, 3);
         assert_eq!(set.base.tests, Scenario::default().tests);
         assert_eq!(set.variants[0], set.base);
+    }
+
+    #[test]
+    fn a_partial_table_keeps_the_defaults_it_leaves_out() {
+        let set =
+            ScenarioSet::parse("[model]\nseed = 7\n[sim.noise]\nsigma = 5.0\n", "p.toml").unwrap();
+        let base = &set.base;
+        assert_eq!(base.name, "p");
+        assert_eq!(base.model.seed, 7);
+        assert_eq!(base.model.states, Scenario::default().model.states);
+        assert_eq!(base.sim.noise.sigma, 5.0);
+        assert_eq!(base.sim.camera, Scenario::default().sim.camera);
+        // A motion table replaces the default motion instead of merging into it.
+        let set = ScenarioSet::parse(
+            "[sample]\nmotion = { kind = \"points\", points = [[0.0, 40.0], [1.0, 41.0]] }\n",
+            "q.toml",
+        )
+        .unwrap();
+        assert!(matches!(set.base.sample.motion, Motion::Points { .. }));
     }
 
     #[test]
@@ -518,7 +630,14 @@ states = [2, 2, 2, 3, 3, 2]
             ("name = \"a b\"\n", "may only hold"),
             ("[sample]\nkeep_every = 0\n", "keep_every"),
             ("tests = []\n", "no test motion"),
-            ("learn_threshold = true\nvalidation = []\n", "validation"),
+            (
+                "[features.barycentre]\nenabled = true\n",
+                "6 counts for 8 features",
+            ),
+            ("name = \"..\"\n", "may not start with"),
+            ("paper_error = nan\n", "paper_error"),
+            ("[track]\nconflict_threshold = -1.0\n", "[track]"),
+            ("[sweep.grid]\n\"model.states\" = []\n", "empty"),
             ("[expect]\nmax_mean_error = -1.0\n", "max_mean_error"),
         ] {
             let error = ScenarioSet::parse(text, "t.toml")
@@ -527,6 +646,18 @@ states = [2, 2, 2, 3, 3, 2]
                 .to_string();
             assert!(error.contains(needle), "{text:?}: {error}");
         }
+    }
+
+    #[test]
+    fn learning_the_threshold_needs_a_validation_motion() {
+        let scenario = Scenario {
+            name: "v".into(),
+            learn_threshold: true,
+            validation: None,
+            ..Scenario::default()
+        };
+        let error = scenario.check().unwrap_err().to_string();
+        assert!(error.contains("needs a [validation] motion"), "{error}");
     }
 
     #[test]

@@ -475,7 +475,7 @@ max_mean_error = 0.001
 
 #[test]
 fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
-    use evitrack::experiment::{derive_seed, Workbench};
+    use evitrack::experiment::{part_seed, Part, Workbench};
     let dir = tempfile::tempdir().unwrap();
     let scenario_path = dir.path().join("s.toml");
     std::fs::write(
@@ -510,7 +510,7 @@ fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
         .dataset(
             &scenario.sim,
             &scenario.tests[0],
-            derive_seed(9, "test0"),
+            part_seed(9, Part::Test(0)),
             &mut |_, _| {},
         )
         .unwrap();

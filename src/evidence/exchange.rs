@@ -55,7 +55,8 @@ impl ConflictLevel {
         }
     }
 
-    fn from_value(k: f64) -> Self {
+    /// `Finite(k)` for a finite `k`, otherwise `Infinite`.
+    pub fn from_value(k: f64) -> Self {
         if k.is_finite() {
             ConflictLevel::Finite(k)
         } else {

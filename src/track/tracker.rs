@@ -61,12 +61,18 @@ pub struct FrameFlags {
     pub fallback: bool,
     /// No feature was usable: there is no estimate.
     pub no_usable_feature: bool,
+    /// The chosen group's combination gave no usable plausibility (every sample pose's product
+    /// underflowed to zero): there is no estimate.
+    pub combination_failed: bool,
 }
 
 impl FrameFlags {
     /// Whether the frame deserves attention: an unusable feature, a fallback or no estimate.
     pub fn any(&self) -> bool {
-        !self.unusable.is_empty() || self.fallback || self.no_usable_feature
+        !self.unusable.is_empty()
+            || self.fallback
+            || self.no_usable_feature
+            || self.combination_failed
     }
 
     /// Features with no likelihoods in this frame.
@@ -793,6 +799,7 @@ impl Tracker {
             }
         }
         let result = self.estimate_group(group, &usable);
+        flags.combination_failed = result.is_none();
         Ok(FrameEstimate {
             estimate: result.as_ref().map(|r| r.0),
             group: lex(group),
