@@ -24,12 +24,9 @@ use thiserror::Error;
 /// by [`GaussianHmm::validate`].
 pub const STOCHASTIC_TOLERANCE: f64 = 1e-6;
 
-/// Smallest scaled emission used by the forward–backward pass: an emission `1e-150` times
-/// smaller than the best state's counts as `1e-150` (a negligible change), which keeps every
-/// forward step from underflowing.
-const EMISSION_FLOOR: f64 = 1e-150;
-
-/// ln [`EMISSION_FLOOR`].
+/// ln of the smallest scaled emission used by the forward–backward pass, 1e-150: an emission
+/// `1e-150` times smaller than the best state's counts as `1e-150` (a negligible change), which
+/// keeps every forward step from underflowing.
 const LN_EMISSION_FLOOR: f64 = -345.387_763_949_107;
 
 /// Squared standardised distances are capped here so that any finite observation gives a finite
@@ -469,10 +466,7 @@ impl GaussianHmm {
         };
         let floor = settings.variance_floor * reference;
 
-        let mut sorted = observations.to_vec();
-        sorted.sort_by(f64::total_cmp);
-        sorted.dedup();
-        let k = n_states.min(sorted.len());
+        let k = n_states.min(count_distinct_up_to(observations, n_states));
 
         // EM runs on centred data: the second-moment variance update loses precision when the
         // mean is large against the spread.
@@ -556,6 +550,28 @@ fn check_finite(observations: &[f64]) -> Result<(), HmmError> {
     }
 }
 
+/// Number of distinct values in `y`, counted only up to `cap`.
+fn count_distinct_up_to(y: &[f64], cap: usize) -> usize {
+    if cap <= 16 {
+        // Usually `cap` distinct values turn up within the first few samples: no sort needed.
+        let mut seen: Vec<f64> = Vec::with_capacity(cap);
+        for v in y {
+            if seen.len() == cap {
+                break;
+            }
+            if !seen.contains(v) {
+                seen.push(*v);
+            }
+        }
+        seen.len()
+    } else {
+        let mut sorted = y.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        sorted.dedup();
+        sorted.len().min(cap)
+    }
+}
+
 fn argmax(v: &[f64]) -> usize {
     let mut best = 0;
     for (j, x) in v.iter().enumerate() {
@@ -566,20 +582,22 @@ fn argmax(v: &[f64]) -> usize {
     best
 }
 
-/// eˣ for x in [−700, 0], accurate to a few ulp; an inlinable replacement for `f64::exp` in
-/// the E-step, where it is the hot spot. x = k ln 2 + r with |r| ≤ ln 2 / 2, then eʳ by its
-/// Taylor series to degree 13 (truncation error below 1e-17) and 2ᵏ from the exponent bits.
+/// eˣ for x in [−700, 0], accurate to a few ulp; an inlinable, branch-free replacement for
+/// `f64::exp` in the E-step, where it is the hot spot (the emission pass over all T × N
+/// densities vectorises with it). x = k ln 2 + r with |r| ≤ ln 2 / 2, then eʳ by its Taylor
+/// series to degree 13 (truncation error below 1e-17) and 2ᵏ from the exponent bits.
 #[inline(always)]
 fn exp_nonpositive(x: f64) -> f64 {
     // ln 2 split so that k × LN2_HI is exact for |k| < 2²⁰.
     const LN2_HI: f64 = 0.693_147_180_369_123_8;
     const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
-    // x ≤ 0, so truncating x log₂e − 1/2 towards zero rounds x log₂e to the nearest integer.
-    let k = (x * std::f64::consts::LOG2_E - 0.5) as i64;
-    let kf = k as f64;
+    // Adding 1.5 × 2⁵² rounds x log₂e to the nearest integer k and leaves k in the low
+    // mantissa bits: no float-to-integer conversion, which SSE2 lacks for packed f64.
+    const SHIFT: f64 = 6_755_399_441_055_744.0;
+    let t = x * std::f64::consts::LOG2_E + SHIFT;
+    let kf = t - SHIFT;
     let r = (x - kf * LN2_HI) - kf * LN2_LO;
-    // Coefficients 1/i!, i = 0..=13, evaluated by Estrin's scheme: a shallower dependency
-    // chain than Horner's, which matters as the E-step is latency-bound here.
+    // Coefficients 1/i!, i = 0..=13, evaluated by Estrin's scheme (a shallow dependency chain).
     const C: [f64; 14] = [
         1.0,
         1.0,
@@ -604,7 +622,10 @@ fn exp_nonpositive(x: f64) -> f64 {
     let q2 = (C[8] + C[9] * r) + (C[10] + C[11] * r) * r2;
     let q3 = C[12] + C[13] * r;
     let p = (q0 + q1 * r4) + (q2 + q3 * r4) * r8;
-    p * f64::from_bits(((k + 1023) as u64) << 52)
+    // The low 12 bits of t's bit pattern plus the exponent bias are k + 1023 ∈ [13, 1023]
+    // (the constant part of SHIFT has zero low bits); shifted into the exponent field they
+    // give 2ᵏ.
+    p * f64::from_bits(t.to_bits().wrapping_add(1023) << 52)
 }
 
 /// Per-state constants of the Gaussian log density.
@@ -685,7 +706,8 @@ struct Run {
 struct Workspace {
     n: usize,
     k: usize,
-    /// Scaled emissions b'ₜ(j) ∈ [EMISSION_FLOOR, 1], n × k.
+    /// Scaled emissions b'ₜ(j) ∈ [1e-150, 1], state-major (k × n) so that the emission
+    /// pass runs over contiguous memory and vectorises.
     emis: Vec<f64>,
     /// ln of the largest emission density at each t.
     offset: Vec<f64>,
@@ -693,6 +715,9 @@ struct Workspace {
     alpha: Vec<f64>,
     /// 1 / (rescaling factor) applied at each t (1 where none was applied).
     inv_scale: Vec<f64>,
+    /// Per-state constants of the log density: −½ ln(2πσ²) and 1/σ.
+    log_norm: Vec<f64>,
+    inv_sd: Vec<f64>,
     /// Accumulators of the E-step.
     gamma_sum: Vec<f64>,
     gamma_y: Vec<f64>,
@@ -702,7 +727,7 @@ struct Workspace {
 }
 
 /// The forward variables are rescaled when their sum falls below this; with emissions floored
-/// at [`EMISSION_FLOOR`] one step cannot take them below 1e-250, far from underflow.
+/// at 1e-150 one step cannot take them below 1e-250, far from underflow.
 const RESCALE_BELOW: f64 = 1e-100;
 
 impl Workspace {
@@ -714,6 +739,8 @@ impl Workspace {
             offset: vec![0.0; n],
             alpha: vec![0.0; n * k],
             inv_scale: vec![0.0; n],
+            log_norm: vec![0.0; k],
+            inv_sd: vec![0.0; k],
             gamma_sum: vec![0.0; k],
             gamma_y: vec![0.0; k],
             gamma_yy: vec![0.0; k],
@@ -722,97 +749,151 @@ impl Workspace {
         }
     }
 
-    /// Scaled emissions and forward pass; returns the log-likelihood, or None if it is not
-    /// finite.
-    fn forward(&mut self, y: &[f64], p: &Params) -> Option<f64> {
-        // Constant state counts let the compiler unroll the inner loops.
-        match self.k {
-            1 => self.forward_k(1, y, p),
-            2 => self.forward_k(2, y, p),
-            3 => self.forward_k(3, y, p),
-            4 => self.forward_k(4, y, p),
-            5 => self.forward_k(5, y, p),
-            6 => self.forward_k(6, y, p),
-            k => self.forward_k(k, y, p),
+    /// All T × N scaled emissions b'ₜ(j) = exp(ln Γⱼ(yₜ) − offsetₜ), floored, into `emis`, and
+    /// the offsets offsetₜ = maxⱼ ln Γⱼ(yₜ). Three branch-free passes over contiguous memory
+    /// rather than one per step: the compiler vectorises them.
+    fn emissions(&mut self, y: &[f64], p: &Params) {
+        let n = self.n;
+        for j in 0..self.k {
+            self.log_norm[j] = -0.5 * (LN_2PI + p.variances[j].ln());
+            self.inv_sd[j] = 1.0 / p.variances[j].sqrt();
+        }
+        for (j, row) in self.emis.chunks_exact_mut(n).enumerate() {
+            let (mu, isd, ln) = (p.means[j], self.inv_sd[j], self.log_norm[j]);
+            for (e, &yt) in row.iter_mut().zip(y) {
+                let d = (yt - mu) * isd;
+                *e = ln - 0.5 * (d * d).min(MAX_SQUARED_DISTANCE);
+            }
+        }
+        let (first, rest) = self.emis.split_at(n);
+        self.offset.copy_from_slice(first);
+        for row in rest.chunks_exact(n) {
+            for (m, &e) in self.offset.iter_mut().zip(row) {
+                if e > *m {
+                    *m = e;
+                }
+            }
+        }
+        for row in self.emis.chunks_exact_mut(n) {
+            for (e, &m) in row.iter_mut().zip(&self.offset) {
+                // Clamped at the floor: below it the value hardly matters and the clamp keeps
+                // the exponent in range. The best state gets exp(0) = 1 exactly.
+                let d = *e - m;
+                *e = exp_nonpositive(if d > LN_EMISSION_FLOOR {
+                    d
+                } else {
+                    LN_EMISSION_FLOOR
+                });
+            }
         }
     }
 
-    #[inline(always)]
-    fn forward_k(&mut self, k: usize, y: &[f64], p: &Params) -> Option<f64> {
-        let consts = EmissionConsts::new(&p.means, &p.variances);
-        let trans = &p.trans[..k * k];
-        // Log-likelihood = Σ offsetₜ − Σ ln(inv_scaleₜ) + ln Σ α_T. Emissions and the forward
-        // recursion share one loop so that the emission arithmetic fills the latency of the
-        // recursion's dependency chain.
-        let mut log_scale = 0.0;
-        let mut prev = [0.0f64; 0].as_slice();
-        for ((((row, off), &yt), cur), inv) in self
-            .emis
-            .chunks_exact_mut(k)
-            .zip(self.offset.iter_mut())
-            .zip(y)
-            .zip(self.alpha.chunks_exact_mut(k))
-            .zip(self.inv_scale.iter_mut())
-        {
-            let mut m = f64::NEG_INFINITY;
-            let mut best = 0;
-            for (j, r) in row.iter_mut().enumerate() {
-                *r = consts.log_density(j, yt);
-                if *r > m {
-                    m = *r;
-                    best = j;
-                }
-            }
-            // The best state's scaled emission is exactly 1: one exponential saved per step.
-            for (j, r) in row.iter_mut().enumerate() {
-                let d = *r - m;
-                // Far below the floor `exp` would take its slow underflow path.
-                *r = if j == best {
-                    1.0
-                } else if d > LN_EMISSION_FLOOR {
-                    exp_nonpositive(d)
-                } else {
-                    EMISSION_FLOOR
-                };
-            }
-            *off = m;
-            let b = &*row;
-            if prev.is_empty() {
-                for j in 0..k {
-                    cur[j] = p.initial[j] * b[j];
-                }
-            } else {
-                for j in 0..k {
-                    // Started from the first term, not 0.0: one addition less on the chain
-                    // that links consecutive steps.
-                    let mut s = prev[0] * trans[j];
-                    for i in 1..k {
-                        s += prev[i] * trans[i * k + j];
-                    }
-                    cur[j] = s * b[j];
-                }
-            }
-            let s: f64 = cur.iter().sum();
-            if s < RESCALE_BELOW || !s.is_finite() {
-                if !(s > 0.0 && s.is_finite()) {
-                    return None;
-                }
-                let r = 1.0 / s;
-                for a in cur.iter_mut() {
-                    *a *= r;
-                }
-                *inv = r;
-                log_scale += s.ln();
-            } else {
-                *inv = 1.0;
-            }
-            prev = cur;
-        }
-        // Summed again rather than carried through the loop: a loop-carried value here led the
-        // compiler to compute its logarithm at every step.
-        let last_sum: f64 = prev.iter().sum();
+    /// Scaled emissions and forward pass; returns the log-likelihood, or None if it is not
+    /// finite.
+    fn forward(&mut self, y: &[f64], p: &Params) -> Option<f64> {
+        self.emissions(y, p);
+        // Constant state counts let the compiler unroll the inner loops and keep the forward
+        // variables in registers.
+        let log_scale = match self.k {
+            1 => self.forward_k::<1>(p),
+            2 => self.forward_k::<2>(p),
+            3 => self.forward_k::<3>(p),
+            4 => self.forward_k::<4>(p),
+            5 => self.forward_k::<5>(p),
+            6 => self.forward_k::<6>(p),
+            _ => self.forward_dyn(p),
+        }?;
+        // Log-likelihood = Σ offsetₜ − Σ ln(inv_scaleₜ) + ln Σ α_T.
+        let n = self.n;
+        let last_sum: f64 = self.alpha[(n - 1) * self.k..].iter().sum();
         let ll = log_scale + last_sum.ln() + self.offset.iter().sum::<f64>();
         ll.is_finite().then_some(ll)
+    }
+
+    /// Forward recursion for K states; returns Σ ln(rescaling factors), None on failure.
+    fn forward_k<const K: usize>(&mut self, p: &Params) -> Option<f64> {
+        let n = self.n;
+        let mut trans = [[0.0; K]; K];
+        for (i, row) in trans.iter_mut().enumerate() {
+            row.copy_from_slice(&p.trans[i * K..(i + 1) * K]);
+        }
+        let e: [&[f64]; K] = std::array::from_fn(|j| &self.emis[j * n..(j + 1) * n]);
+        let mut log_scale = 0.0;
+        let mut prev = [0.0f64; K];
+        for j in 0..K {
+            prev[j] = p.initial[j] * e[j][0];
+        }
+        let (first, rest) = self.alpha.split_at_mut(K);
+        log_scale += Self::rescale(&mut prev, &mut self.inv_scale[0])?;
+        first.copy_from_slice(&prev);
+        for (t, (cur_out, inv)) in rest
+            .chunks_exact_mut(K)
+            .zip(&mut self.inv_scale[1..])
+            .enumerate()
+        {
+            let t = t + 1;
+            // Aᵢⱼ bₜ(j) does not depend on the previous step: folding the emission into the
+            // matrix takes a multiplication off the chain that links consecutive steps.
+            let mut cur = [0.0f64; K];
+            for j in 0..K {
+                let b = e[j][t];
+                let mut s = prev[0] * (trans[0][j] * b);
+                for i in 1..K {
+                    s += prev[i] * (trans[i][j] * b);
+                }
+                cur[j] = s;
+            }
+            log_scale += Self::rescale(&mut cur, inv)?;
+            cur_out.copy_from_slice(&cur);
+            prev = cur;
+        }
+        Some(log_scale)
+    }
+
+    /// Rescales `a` to sum 1 when its sum is below [`RESCALE_BELOW`] (or not finite), records
+    /// the inverse factor in `inv` and returns ln(factor); None if the sum is not positive and
+    /// finite.
+    #[inline(always)]
+    fn rescale(a: &mut [f64], inv: &mut f64) -> Option<f64> {
+        let s: f64 = a.iter().sum();
+        if s < RESCALE_BELOW || !s.is_finite() {
+            if !(s > 0.0 && s.is_finite()) {
+                return None;
+            }
+            let r = 1.0 / s;
+            for x in a.iter_mut() {
+                *x *= r;
+            }
+            *inv = r;
+            Some(s.ln())
+        } else {
+            *inv = 1.0;
+            Some(0.0)
+        }
+    }
+
+    /// Forward recursion for any number of states.
+    fn forward_dyn(&mut self, p: &Params) -> Option<f64> {
+        let (n, k) = (self.n, self.k);
+        let mut log_scale = 0.0;
+        for j in 0..k {
+            self.alpha[j] = p.initial[j] * self.emis[j * n];
+        }
+        log_scale += Self::rescale(&mut self.alpha[..k], &mut self.inv_scale[0])?;
+        for t in 1..n {
+            let (done, todo) = self.alpha.split_at_mut(t * k);
+            let prev = &done[(t - 1) * k..];
+            let cur = &mut todo[..k];
+            for (j, c) in cur.iter_mut().enumerate() {
+                let mut s = 0.0;
+                for (i, a) in prev.iter().enumerate() {
+                    s += a * p.trans[i * k + j];
+                }
+                *c = s * self.emis[j * n + t];
+            }
+            log_scale += Self::rescale(cur, &mut self.inv_scale[t])?;
+        }
+        Some(log_scale)
     }
 
     /// Backward pass with the E-step statistics; requires `forward` on the same parameters.
@@ -829,12 +910,15 @@ impl Workspace {
         }
     }
 
+    /// Backward pass for K states. One sweep gives β, the γ sums and the ξ sums for the
+    /// transition update.
     fn backward_k<const K: usize>(&mut self, y: &[f64], p: &Params) -> bool {
         let mut trans = [[0.0; K]; K];
         for (i, row) in trans.iter_mut().enumerate() {
             row.copy_from_slice(&p.trans[i * K..(i + 1) * K]);
         }
         let n = self.n;
+        let e: [&[f64]; K] = std::array::from_fn(|j| &self.emis[j * n..(j + 1) * n]);
         // Σᵢ αₜ(i) βₜ(i) is the same for every t (the forward and backward variables share
         // their scaling factors), so γ is normalised once, by its value at the last step.
         let total: f64 = self.alpha[(n - 1) * K..n * K].iter().sum();
@@ -846,7 +930,7 @@ impl Workspace {
         let mut g_y = [0.0f64; K];
         let mut g_yy = [0.0f64; K];
         let mut outer = [[0.0f64; K]; K];
-        for t in (0..n).rev() {
+        for t in (1..n).rev() {
             let alpha = &self.alpha[t * K..(t + 1) * K];
             let yt = y[t];
             for i in 0..K {
@@ -855,29 +939,37 @@ impl Workspace {
                 g_y[i] += g * yt;
                 g_yy[i] += g * yt * yt;
             }
-            if t == 0 {
-                for i in 0..K {
-                    self.gamma_first[i] = alpha[i] * beta[i];
-                }
-                break;
-            }
             // ξ_{t−1}(i, j) ∝ α_{t−1}(i) A_ij wₜ(j) with wₜ = b'ₜ βₜ × inv_scaleₜ; A_ij is
-            // factored out of the sum over t. β_{t−1} = A wₜ.
-            let b = &self.emis[t * K..(t + 1) * K];
+            // factored out of the sum over t. β_{t−1} = A wₜ, computed as Σⱼ (A_ij b'ₜ(j)
+            // inv_scaleₜ) βₜ(j): the products are off the chain linking consecutive steps.
             let inv = self.inv_scale[t];
+            let mut bi = [0.0f64; K];
             let mut w = [0.0f64; K];
             for j in 0..K {
-                w[j] = b[j] * beta[j] * inv;
+                bi[j] = e[j][t] * inv;
+                w[j] = bi[j] * beta[j];
             }
             let a_prev = &self.alpha[(t - 1) * K..t * K];
+            let mut next = [0.0f64; K];
             for i in 0..K {
-                let mut s = 0.0;
+                let mut s = (trans[i][0] * bi[0]) * beta[0];
+                for j in 1..K {
+                    s += (trans[i][j] * bi[j]) * beta[j];
+                }
                 for j in 0..K {
-                    s += trans[i][j] * w[j];
                     outer[i][j] += a_prev[i] * w[j];
                 }
-                beta[i] = s;
+                next[i] = s;
             }
+            beta = next;
+        }
+        let yt = y[0];
+        for i in 0..K {
+            let g = self.alpha[i] * beta[i];
+            g_sum[i] += g;
+            g_y[i] += g * yt;
+            g_yy[i] += g * yt * yt;
+            self.gamma_first[i] = g;
         }
         let r = 1.0 / total;
         for i in 0..K {
@@ -919,10 +1011,9 @@ impl Workspace {
             if t == 0 {
                 break;
             }
-            let b = &self.emis[t * k..(t + 1) * k];
             let inv = self.inv_scale[t];
-            for j in 0..k {
-                w[j] = b[j] * beta[j] * inv;
+            for (j, wj) in w.iter_mut().enumerate() {
+                *wj = self.emis[j * n + t] * beta[j] * inv;
             }
             let a_prev = &self.alpha[(t - 1) * k..t * k];
             for i in 0..k {
@@ -1004,17 +1095,20 @@ fn em(
     let mut trace = vec![ll];
     let mut iterations = 0;
     let mut converged = false;
+    // Two parameter sets swapped each iteration: no allocation inside the loop.
+    let mut next = p.clone();
     while iterations < settings.max_iterations {
         if !ws.backward(y, &p) {
             return None;
         }
-        let mut next = p.clone();
+        // The M-step keeps the old values of states without weight, so it starts from `p`.
+        next.clone_from(&p);
         ws.m_step(&mut next, floor);
         let next_ll = ws.forward(y, &next)?;
         iterations += 1;
         trace.push(next_ll);
         let gain = next_ll - ll;
-        p = next;
+        std::mem::swap(&mut p, &mut next);
         ll = next_ll;
         if gain < settings.tolerance * n {
             converged = true;
@@ -1071,16 +1165,17 @@ fn init_kmeanspp(y: &[f64], k: usize, floor: f64, rng: &mut ChaCha8Rng) -> Param
     for _ in 0..10 {
         let mut changed = false;
         for (l, v) in labels.iter_mut().zip(y) {
+            // Selects rather than branches: which centre is nearest is unpredictable.
             let mut best = 0;
-            for j in 1..k {
-                if (v - centres[j]).abs() < (v - centres[best]).abs() {
-                    best = j;
-                }
+            let mut best_d = (v - centres[0]).abs();
+            for (j, c) in centres.iter().enumerate().skip(1) {
+                let d = (v - c).abs();
+                let nearer = d < best_d;
+                best = if nearer { j } else { best };
+                best_d = if nearer { d } else { best_d };
             }
-            if *l != best {
-                *l = best;
-                changed = true;
-            }
+            changed |= *l != best;
+            *l = best;
         }
         let mut sum = vec![0.0; k];
         let mut count = vec![0usize; k];
@@ -1211,8 +1306,20 @@ mod tests {
             let mut a = Workspace::new(ys.len(), k);
             let mut b = Workspace::new(ys.len(), k);
             let la = a.forward(&ys, &p).unwrap();
-            let lb = b.forward(&ys, &p).unwrap();
-            assert_eq!(la, lb);
+            // The general forward recursion, against the specialised one used by `forward`.
+            b.emissions(&ys, &p);
+            let scale_b = b.forward_dyn(&p).unwrap();
+            let last: f64 = b.alpha[(ys.len() - 1) * k..].iter().sum();
+            let lb = scale_b + last.ln() + b.offset.iter().sum::<f64>();
+            assert!(
+                (la - lb).abs() <= 1e-10 * la.abs().max(1.0),
+                "k={k} {la} vs {lb}"
+            );
+            assert!(a
+                .alpha
+                .iter()
+                .zip(&b.alpha)
+                .all(|(u, v)| (u - v).abs() <= 1e-12 * u.abs().max(v.abs()).max(1e-300)));
             assert!(a.backward(&ys, &p));
             assert!(b.backward_dyn(&ys, &p));
             let close = |x: &[f64], y: &[f64]| {
@@ -1233,6 +1340,60 @@ mod tests {
                 a.xi_sum,
                 a.gamma_sum
             );
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn count_distinct_agrees_with_sort_and_dedup(
+            ys in proptest::collection::vec(prop_oneof![-3i32..3, -1000i32..1000], 0..80),
+            cap in 0usize..40,
+        ) {
+            let ys: Vec<f64> = ys.into_iter().map(|v| v as f64 * 0.5).collect();
+            let mut sorted = ys.clone();
+            sorted.sort_by(f64::total_cmp);
+            sorted.dedup();
+            prop_assert_eq!(count_distinct_up_to(&ys, cap), sorted.len().min(cap));
+        }
+    }
+
+    #[test]
+    fn scaled_emissions_are_floored_and_best_is_one() {
+        let ys = [0.0, 1.0, -2.0, 1e6, -1e6, 3.5];
+        let p = Params {
+            k: 3,
+            initial: vec![0.2, 0.3, 0.5],
+            trans: vec![1.0 / 3.0; 9],
+            means: vec![-1.0, 0.5, 2.0],
+            variances: vec![0.1, 1.0, 4.0],
+        };
+        let mut ws = Workspace::new(ys.len(), 3);
+        ws.emissions(&ys, &p);
+        for t in 0..ys.len() {
+            let col: Vec<f64> = (0..3).map(|j| ws.emis[j * ys.len() + t]).collect();
+            assert_eq!(
+                col.iter().cloned().fold(0.0, f64::max),
+                1.0,
+                "t={t} {col:?}"
+            );
+            assert!(col.iter().all(|&b| b >= 0.999e-150), "t={t} {col:?}");
+            let mut logs = [0.0; 3];
+            let hmm = GaussianHmm::new(
+                p.initial.clone(),
+                vec![vec![1.0 / 3.0; 3]; 3],
+                p.means.clone(),
+                p.variances.clone(),
+            )
+            .unwrap();
+            hmm.log_likelihoods(ys[t], &mut logs).unwrap();
+            for j in 0..3 {
+                let expected = (logs[j] - ws.offset[t]).exp().max(1e-150);
+                assert!(
+                    (col[j] - expected).abs() <= 1e-12 * expected,
+                    "t={t} j={j} {} vs {expected}",
+                    col[j]
+                );
+            }
         }
     }
 
