@@ -68,6 +68,16 @@ fn splitmix(mut x: u64) -> u64 {
     x ^ (x >> 31)
 }
 
+/// Pre-hash of a set: Σ wordₖ·keyₖ with odd per-word keys (one plain multiply per word; the
+/// full 128-bit mix is applied once per set in [`Engine::insert`]). Equal sets hash equally, and
+/// collisions only cost a word comparison.
+#[inline(always)]
+fn hash_words(x: &[u64], keys: &[u64]) -> u64 {
+    x.iter()
+        .zip(keys)
+        .fold(0u64, |h, (xk, key)| h.wrapping_add(xk.wrapping_mul(*key)))
+}
+
 /// Focal sets of one function in a flat arena (non-empty sets only; ∅ mass kept apart).
 #[derive(Default)]
 struct Arena {
@@ -149,13 +159,14 @@ impl Engine {
         let w = word_count(n);
         Engine {
             w,
-            keys: (0..w as u64).map(splitmix).collect(),
+            keys: (0..w as u64).map(|k| splitmix(k) | 1).collect(),
             table,
         }
     }
 
-    /// out ← merged non-empty intersections of cur × b; returns the mass of empty intersections.
-    fn step(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> f64 {
+    /// out ← merged non-empty intersections of cur × b; returns the masses of the empty and of the
+    /// non-empty intersections.
+    fn step(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> (f64, f64) {
         match self.w {
             1 => self.step_w::<1>(cur, b, out),
             2 => self.step_w::<2>(cur, b, out),
@@ -173,7 +184,10 @@ impl Engine {
     /// slots up front; [`Engine::grow`] doubles it when it fills, so a huge number of pairs with
     /// few distinct intersections does not allocate a huge table).
     fn prepare(&mut self, pairs: usize, out: &mut Arena) -> usize {
-        let cap = (2 * pairs.min(INITIAL_SLOTS)).next_power_of_two().max(16);
+        // 1.5 slots per pair: late steps merge many pairs, and a smaller table stays in cache.
+        let cap = (pairs.min(INITIAL_SLOTS) * 3 / 2)
+            .next_power_of_two()
+            .max(16);
         self.table.clear();
         self.table.resize(cap, EMPTY_SLOT);
         out.clear();
@@ -191,10 +205,7 @@ impl Engine {
         self.table.resize(cap, EMPTY_SLOT);
         let mask = cap - 1;
         for (i, words) in out.words.chunks_exact(w).enumerate() {
-            let h = words
-                .iter()
-                .zip(&self.keys)
-                .fold(0u64, |h, (xk, key)| h.wrapping_add(fold_mul(xk ^ key, MIX)));
+            let h = hash_words(words, &self.keys);
             let hf = fold_mul(h, MIX);
             let mut pos = (hf as usize) & mask;
             while self.table[pos] != EMPTY_SLOT {
@@ -219,9 +230,7 @@ impl Engine {
             if e == EMPTY_SLOT {
                 table[pos] = tag | out.mass.len() as u64;
                 out.mass.push(m);
-                for &v in x {
-                    out.words.push(v);
-                }
+                out.words.extend_from_slice(x);
                 return;
             }
             if e & 0xFFFF_FFFF_0000_0000 == tag {
@@ -237,11 +246,12 @@ impl Engine {
         }
     }
 
-    fn step_w<const W: usize>(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> f64 {
+    fn step_w<const W: usize>(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> (f64, f64) {
         let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut keys = [0u64; W];
         keys.copy_from_slice(&self.keys[..W]);
         let mut empty = 0.0;
+        let mut kept = 0.0;
         for (a, &ma) in cur.words.chunks_exact(W).zip(&cur.mass) {
             for (bw, &mb) in b.words.chunks_exact(W).zip(&b.mass) {
                 let mut x = [0u64; W];
@@ -254,23 +264,22 @@ impl Engine {
                     empty += ma * mb;
                     continue;
                 }
-                let mut h = 0u64;
-                for k in 0..W {
-                    h = h.wrapping_add(fold_mul(x[k] ^ keys[k], MIX));
-                }
+                let h = hash_words(&x, &keys);
                 if 2 * out.len() >= mask {
                     mask = self.grow(out);
                 }
+                kept += ma * mb;
                 Self::insert(&mut self.table, mask, out, &x, h, ma * mb);
             }
         }
-        empty
+        (empty, kept)
     }
 
-    fn step_dyn(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> f64 {
+    fn step_dyn(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> (f64, f64) {
         let w = self.w;
         let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut empty = 0.0;
+        let mut kept = 0.0;
         let mut x = vec![0u64; w];
         for (a, &ma) in cur.words.chunks_exact(w).zip(&cur.mass) {
             for (bw, &mb) in b.words.chunks_exact(w).zip(&b.mass) {
@@ -283,17 +292,15 @@ impl Engine {
                     empty += ma * mb;
                     continue;
                 }
-                let h = x
-                    .iter()
-                    .zip(&self.keys)
-                    .fold(0u64, |h, (xk, key)| h.wrapping_add(fold_mul(xk ^ key, MIX)));
+                let h = hash_words(&x, &self.keys);
                 if 2 * out.len() >= mask {
                     mask = self.grow(out);
                 }
+                kept += ma * mb;
                 Self::insert(&mut self.table, mask, out, &x, h, ma * mb);
             }
         }
-        empty
+        (empty, kept)
     }
 }
 
@@ -351,34 +358,44 @@ fn run_in<R>(
     let Scratch { cur, next, b, .. } = scratch;
     let mut empty = 0.0;
     let mut level = 0.0;
-    let mut total_conflict = false;
+    // In Dempster mode the running result has total mass `s` instead of 1; rather than rescale
+    // its many focal sets after every step, the next function's few masses are scaled by 1/s
+    // (same products up to rounding, and masses still cannot underflow), and only the final
+    // result is rescaled.
+    let mut s = 1.0;
     for (i, f) in fs.iter().enumerate() {
         if i == 0 {
             empty = cur.load(f);
+            s = cur.mass.iter().sum();
         } else {
             let b_empty = b.load(f);
-            let b_total: f64 = b_empty + b.mass.iter().sum::<f64>();
-            let cur_total: f64 = cur.mass.iter().sum();
-            let conflict = engine.step(cur, b, next);
+            if normalise {
+                for m in &mut b.mass {
+                    *m /= s;
+                }
+                (_, s) = engine.step(cur, b, next);
+            } else {
+                let b_total: f64 = b_empty + b.mass.iter().sum::<f64>();
+                let cur_total: f64 = cur.mass.iter().sum();
+                let (conflict, _) = engine.step(cur, b, next);
+                empty = empty * b_total + cur_total * b_empty + conflict;
+            }
             std::mem::swap(cur, next);
-            empty = empty * b_total + cur_total * b_empty + conflict;
         }
         if normalise {
-            let s: f64 = cur.mass.iter().sum();
             if cur.len() == 0 || s <= 0.0 {
-                total_conflict = true;
-                break;
+                scratch.table = engine.table;
+                return None;
             }
             level += (-s.ln()).max(0.0);
-            for m in &mut cur.mass {
-                *m /= s;
-            }
-            empty = 0.0;
         }
     }
     scratch.table = engine.table;
-    if total_conflict {
-        return None;
+    if normalise {
+        for m in &mut scratch.cur.mass {
+            *m /= s;
+        }
+        empty = 0.0;
     }
     Some(finish(Outcome {
         n,
@@ -391,11 +408,14 @@ fn run_in<R>(
 fn to_mass_function(out: Outcome<'_>, keep_empty: bool) -> MassFunction {
     let w = word_count(out.n).max(1);
     let mut focal = Vec::with_capacity(out.arena.len() + 1);
+    focal.extend(
+        out.arena
+            .words
+            .chunks_exact(w)
+            .map(|words| Subset::from_words(out.n, words)),
+    );
     let mut mass = Vec::with_capacity(out.arena.len() + 1);
-    for (words, &m) in out.arena.words.chunks_exact(w).zip(&out.arena.mass) {
-        focal.push(Subset::from_words(out.n, words));
-        mass.push(m);
-    }
+    mass.extend_from_slice(&out.arena.mass);
     if keep_empty && out.empty > 0.0 {
         focal.push(Subset::empty(out.n));
         mass.push(out.empty);

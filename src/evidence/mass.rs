@@ -207,9 +207,16 @@ impl MassFunction {
     /// The contour function: plausibility of every singleton, in O(n + Σ|A|).
     pub fn contour(&self) -> Vec<f64> {
         let mut pl = vec![0.0; self.n];
+        // Word by word: focal sets of long combinations are tiny, so most words are zero.
         for (s, m) in self.focal() {
-            for i in s.iter() {
-                pl[i] += m;
+            for (chunk, &word) in pl.chunks_mut(64).zip(s.words()) {
+                let mut bits = word;
+                while bits != 0 {
+                    if let Some(p) = chunk.get_mut(bits.trailing_zeros() as usize) {
+                        *p += m;
+                    }
+                    bits &= bits - 1;
+                }
             }
         }
         pl

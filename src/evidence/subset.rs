@@ -103,6 +103,7 @@ impl Subset {
     }
 
     /// Build from raw words; bits beyond the frame are cleared. Missing words are zero.
+    #[inline]
     pub(crate) fn from_words(n: usize, src: &[u64]) -> Self {
         let w = word_count(n);
         let mut s = if w <= INLINE_WORDS {
