@@ -11,7 +11,7 @@ use evitrack::dataset::Dataset;
 use evitrack::evidence;
 use evitrack::evidence::Constructor;
 use evitrack::experiment::{self, FrameRecord, Part, RunSummary, Workbench};
-use evitrack::features::FeatureConfig;
+use evitrack::features::{FeatureConfig, FeatureSet};
 use evitrack::model::{EvidentialModel, ModelSettings, StateCounts, Tuning};
 use evitrack::report::{self, ErrorStats, Table};
 use evitrack::scenario::{SampleSettings, ScenarioSet};
@@ -442,12 +442,11 @@ fn feature_config(path: Option<&Path>, barycentre: bool) -> Result<FeatureConfig
     }
 }
 
-fn features(args: &FeaturesArgs) -> Result<ExitCode> {
-    let dataset = read_dataset(&args.dataset)?;
-    let set = feature_config(args.config.as_deref(), args.barycentre)?.check()?;
+/// The features of every frame, with a progress bar.
+fn extract_with_progress(set: &FeatureSet, dataset: &Dataset) -> Vec<Vec<Option<f64>>> {
     let bar = progress_bar("features");
     bar.set_length(dataset.len() as u64);
-    let rows: Vec<Vec<Option<f64>>> = dataset
+    let rows = dataset
         .frames
         .iter()
         .map(|frame| {
@@ -456,12 +455,24 @@ fn features(args: &FeaturesArgs) -> Result<ExitCode> {
         })
         .collect();
     bar.finish_and_clear();
-    let sink: Box<dyn std::io::Write> = match &args.out {
-        Some(path) => Box::new(
+    rows
+}
+
+/// A buffered writer to the file, or to standard output when there is none.
+fn output_sink(path: Option<&Path>) -> Result<Box<dyn std::io::Write>> {
+    Ok(match path {
+        Some(path) => Box::new(std::io::BufWriter::new(
             std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-        ),
+        )),
         None => Box::new(std::io::stdout().lock()),
-    };
+    })
+}
+
+fn features(args: &FeaturesArgs) -> Result<ExitCode> {
+    let dataset = read_dataset(&args.dataset)?;
+    let set = feature_config(args.config.as_deref(), args.barycentre)?.check()?;
+    let rows = extract_with_progress(&set, &dataset);
+    let sink = output_sink(args.out.as_deref())?;
     let mut csv = csv::Writer::from_writer(sink);
     let with_truth = dataset.frames.iter().all(|f| f.truth.is_some());
     let mut header = vec!["file".to_string(), "t".to_string()];
@@ -530,17 +541,7 @@ fn train(args: &TrainArgs) -> Result<ExitCode> {
     })?;
     let config = feature_config(args.config.as_deref(), args.barycentre)?;
     let set = config.check()?;
-    let bar = progress_bar("features");
-    bar.set_length(dataset.len() as u64);
-    let rows: Vec<Vec<Option<f64>>> = dataset
-        .frames
-        .iter()
-        .map(|frame| {
-            bar.inc(1);
-            set.extract(&frame.image)
-        })
-        .collect();
-    bar.finish_and_clear();
+    let rows = extract_with_progress(&set, &dataset);
     let states = match &args.states {
         Some(text) => parse_counts(text, "--states")?,
         None => StateCounts::PerFeature(
@@ -796,12 +797,7 @@ fn track_dataset(args: &TrackArgs) -> Result<ExitCode> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let sink: Box<dyn std::io::Write> = match &args.out {
-        Some(path) => Box::new(
-            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-        ),
-        None => Box::new(std::io::stdout().lock()),
-    };
+    let sink = output_sink(args.out.as_deref())?;
     experiment::write_frames_csv(sink, &records, &names)?;
     let errors: Vec<f64> = records.iter().filter_map(|r| r.error).collect();
     let flagged = records.iter().filter(|r| !r.flags.is_empty()).count();
