@@ -209,30 +209,12 @@ impl Scenario {
         self.model
             .check()
             .map_err(|e| invalid(format!("[model]: {e}")))?;
-        let counts = |states: &StateCounts, field: &'static str| {
-            states.resolve(features.len(), field).map_err(|e| {
-                invalid(format!(
-                    "[model]: {e} (the features are {})",
-                    features.names().join(", ")
-                ))
-            })
-        };
-        match &self.model.tuning {
-            Tuning::Given => {
-                counts(&self.model.states, "states")?;
-            }
-            Tuning::Bic {
-                min_states,
-                max_states,
-            }
-            | Tuning::Validation {
-                min_states,
-                max_states,
-            } => {
-                counts(min_states, "tuning.min_states")?;
-                counts(max_states, "tuning.max_states")?;
-            }
-        }
+        self.model.state_ranges(features.len()).map_err(|e| {
+            invalid(format!(
+                "[model]: {e} (the features are {})",
+                features.names().join(", ")
+            ))
+        })?;
         self.track
             .clone()
             .check()

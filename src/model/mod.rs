@@ -301,8 +301,9 @@ impl ModelSettings {
         Ok(())
     }
 
-    /// Inclusive state-count range of each feature.
-    fn ranges(&self, n_features: usize) -> Result<Vec<(usize, usize)>, ModelError> {
+    /// Inclusive state-count range of each of `n_features` features (one count when they are
+    /// given); errors when a list has the wrong length, a count is 0 or a range is reversed.
+    pub fn state_ranges(&self, n_features: usize) -> Result<Vec<(usize, usize)>, ModelError> {
         match &self.tuning {
             Tuning::Given => Ok(self
                 .states
@@ -704,7 +705,7 @@ impl EvidentialModel {
                 got: r.len(),
             });
         }
-        let ranges = settings.ranges(feature_names.len())?;
+        let ranges = settings.state_ranges(feature_names.len())?;
         let mut models = Vec::with_capacity(feature_names.len());
         for (f, (name, &(lo, hi))) in feature_names.iter().zip(&ranges).enumerate() {
             let column: Vec<Option<f64>> = features.iter().map(|row| row[f]).collect();
@@ -1005,8 +1006,11 @@ mod tests {
         assert!(matches!(s.check(), Err(ModelError::Settings { .. })));
         s.states = StateCounts::PerFeature(vec![2, 3]);
         assert!(s.check().is_ok());
-        assert!(matches!(s.ranges(3), Err(ModelError::Settings { .. })));
-        assert_eq!(s.ranges(2).unwrap(), vec![(2, 2), (3, 3)]);
+        assert!(matches!(
+            s.state_ranges(3),
+            Err(ModelError::Settings { .. })
+        ));
+        assert_eq!(s.state_ranges(2).unwrap(), vec![(2, 2), (3, 3)]);
         s.tuning = Tuning::Bic {
             min_states: StateCounts::All(4),
             max_states: StateCounts::All(2),
@@ -1022,6 +1026,9 @@ mod tests {
             max_states: StateCounts::All(4),
         };
         assert!(s.check().is_ok());
-        assert!(matches!(s.ranges(2), Err(ModelError::Settings { .. })));
+        assert!(matches!(
+            s.state_ranges(2),
+            Err(ModelError::Settings { .. })
+        ));
     }
 }

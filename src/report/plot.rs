@@ -3,6 +3,8 @@
 use std::path::Path;
 use std::sync::Once;
 
+use plotters::coord::types::RangedCoordf64;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
@@ -26,6 +28,46 @@ fn plot_error(path: &Path, error: impl std::fmt::Display) -> ReportError {
         path: path.display().to_string(),
         message: error.to_string(),
     }
+}
+
+type Root<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+type Chart<'a> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// A white canvas for `path`.
+fn canvas<'a>(path: &'a Path) -> Result<Root<'a>, ReportError> {
+    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
+    Ok(root)
+}
+
+/// Axes over the given ranges with a title, in the common style.
+fn axes<'a>(
+    root: &Root<'a>,
+    path: &Path,
+    title: &str,
+    x: (f64, f64),
+    y: (f64, f64),
+) -> Result<Chart<'a>, ReportError> {
+    ChartBuilder::on(root)
+        .caption(title, (FONT, 24))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x.0..x.1, y.0..y.1)
+        .map_err(|e| plot_error(path, e))
+}
+
+/// Draws the legend box (upper right) and writes the file.
+fn finish(root: &Root<'_>, mut chart: Chart<'_>, path: &Path) -> Result<(), ReportError> {
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 15))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(|e| plot_error(path, e))?;
+    root.present().map_err(|e| plot_error(path, e))
 }
 
 /// Range covering `values` with a 5% margin (and a unit range when all are equal).
@@ -68,15 +110,8 @@ pub fn plot_trajectory(
             what: "no finite positions".into(),
         });
     };
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 24))
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
-        .map_err(|e| plot_error(path, e))?;
+    let root = canvas(path)?;
+    let mut chart = axes(&root, path, title, x_range, y_range)?;
     chart
         .configure_mesh()
         .x_desc("x (mm)")
@@ -115,15 +150,7 @@ pub fn plot_trajectory(
         .map_err(|e| plot_error(path, e))?
         .label("estimate")
         .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 15))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|e| plot_error(path, e))?;
-    root.present().map_err(|e| plot_error(path, e))
+    finish(&root, chart, path)
 }
 
 /// A named line of (x, y) points for [`plot_series`].
@@ -154,15 +181,8 @@ pub fn plot_series(
             what: "no finite points".into(),
         });
     };
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 24))
-        .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
-        .map_err(|e| plot_error(path, e))?;
+    let root = canvas(path)?;
+    let mut chart = axes(&root, path, title, x_range, y_range)?;
     chart
         .configure_mesh()
         .x_desc(x_label)
@@ -189,14 +209,7 @@ pub fn plot_series(
             )
             .map_err(|e| plot_error(path, e))?;
     }
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 15))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| plot_error(path, e))?;
-    root.present().map_err(|e| plot_error(path, e))
+    finish(&root, chart, path)
 }
 
 /// Mean error per variant as bars; `reference` values (e.g. the paper's figures), when given, are
@@ -223,16 +236,9 @@ pub fn plot_errors_by_variant(
         .fold(0.0f64, f64::max)
         .max(1e-3)
         * 1.15;
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
+    let root = canvas(path)?;
     let n = labels.len();
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 24))
-        .margin(15)
-        .x_label_area_size(60)
-        .y_label_area_size(60)
-        .build_cartesian_2d(-0.5f64..(n as f64 - 0.5), 0.0..top)
-        .map_err(|e| plot_error(path, e))?;
+    let mut chart = axes(&root, path, title, (-0.5, n as f64 - 0.5), (0.0, top))?;
     let label_of = |x: &f64| {
         let i = x.round();
         if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
@@ -273,14 +279,7 @@ pub fn plot_errors_by_variant(
             .label("paper")
             .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, RED.filled()));
     }
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 15))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| plot_error(path, e))?;
-    root.present().map_err(|e| plot_error(path, e))
+    finish(&root, chart, path)
 }
 
 #[cfg(test)]
