@@ -841,3 +841,88 @@ pub fn write_run(
     }
     Ok(written)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::track::FrameFlags;
+
+    fn frame(estimate: Option<[f64; 2]>) -> FrameEstimate {
+        FrameEstimate {
+            estimate,
+            group: vec![0],
+            conflict_level: Some(0.0),
+            uncertainty: None,
+            plausibility: Vec::new(),
+            alternatives: Vec::new(),
+            flags: FrameFlags::default(),
+        }
+    }
+
+    #[test]
+    fn frames_without_estimate_count_as_the_penalty() {
+        let truth = [[0.0, 40.0], [1.0, 40.0], [2.0, 40.0]];
+        let estimates = [
+            frame(Some([0.0, 41.0])),
+            frame(None),
+            frame(Some([2.0, 43.0])),
+        ];
+        // (1 + 10 + 3) / 3: the missing frame weighs as much as the penalty, not nothing.
+        let score = validation_error(&estimates, &truth, 10.0);
+        assert!((score - 14.0 / 3.0).abs() < 1e-12);
+        let none = [frame(None), frame(None)];
+        assert_eq!(validation_error(&none, &truth[..2], 10.0), 10.0);
+        let diagonal = missing_penalty(&SimSettings::default());
+        assert!((diagonal - 19.0 * 2f64.sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn seeds_differ_by_stream_and_master_and_are_stable() {
+        let a = part_seed(1, Part::Sample);
+        assert_eq!(a, part_seed(1, Part::Sample));
+        assert_ne!(a, part_seed(2, Part::Sample));
+        assert_ne!(a, part_seed(1, Part::Validation));
+        assert_ne!(part_seed(1, Part::Test(0)), part_seed(1, Part::Test(1)));
+        assert_eq!(part_seed(7, Part::Test(3)), derive_seed(7, "test3"));
+    }
+
+    #[test]
+    fn regressions_name_what_missed() {
+        let stats = ErrorStats::from_errors(&[2.0, 4.0]);
+        let summary = RunSummary {
+            scenario: "s".into(),
+            seed: 1,
+            samples: 4,
+            adaptive_added: 0,
+            features: vec!["f".into()],
+            states: vec![2],
+            constructor: "bayesian".into(),
+            conflict_threshold: ConflictLevel::Infinite,
+            threshold_learned: false,
+            error: stats,
+            per_motion: Vec::new(),
+            frames: 4,
+            frames_without_estimate: 2,
+            frames_flagged: 2,
+            mean_group_size: 1.0,
+            paper_error: None,
+            expect: Expectations {
+                max_mean_error: Some(2.5),
+                max_missing_share: Some(0.25),
+            },
+            timings: Timings::default(),
+        };
+        let missed = summary.regressions();
+        assert_eq!(missed.len(), 2, "{missed:?}");
+        assert!(missed[0].contains("mean error 3.0000 mm exceeds"));
+        assert!(missed[1].contains("50.0% of frames have no estimate"));
+        let relaxed = RunSummary {
+            expect: Expectations {
+                max_mean_error: Some(3.0),
+                max_missing_share: Some(0.5),
+            },
+            ..summary
+        };
+        assert!(relaxed.regressions().is_empty());
+    }
+}
