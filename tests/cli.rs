@@ -20,6 +20,14 @@ fn evitrack(args: &[&str], stdin: &str) -> Output {
     child.wait_with_output().expect("evitrack finishes")
 }
 
+/// A quick scenario: a 2 mm sample mesh and a 20-frame circle, plus `extra` TOML.
+fn small_scenario(name: &str, extra: &str) -> String {
+    format!(
+        "name = \"{name}\"\n[sample]\nmotion = {{ kind = \"mesh\", spacing = 2.0 }}\n\
+         [[tests]]\nkind = \"circle\"\nradius = 4.0\nspeed = 10.0\nduration = 2.0\nfps = 10.0\n{extra}"
+    )
+}
+
 #[test]
 fn combine_prints_the_issue_output_shape() {
     let input = r#"{"frame": 400, "rule": "dempster", "mass_functions": [
@@ -325,19 +333,7 @@ fn run_writes_results_table_model_and_plot() {
     let scenario = dir.path().join("small.toml");
     std::fs::write(
         &scenario,
-        r#"
-name = "small"
-[sample]
-motion = { kind = "mesh", spacing = 2.0 }
-[[tests]]
-kind = "circle"
-radius = 4.0
-speed = 10.0
-duration = 2.0
-fps = 10.0
-[expect]
-max_mean_error = 8.0
-"#,
+        small_scenario("small", "[expect]\nmax_mean_error = 8.0\n"),
     )
     .unwrap();
     let out_dir = dir.path().join("out");
@@ -389,25 +385,8 @@ max_mean_error = 8.0
 fn sweep_check_fails_on_regression_and_shards_merge() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = dir.path().join("grid.toml");
-    std::fs::write(
-        &scenario,
-        r#"
-name = "grid"
-[sample]
-motion = { kind = "mesh", spacing = 2.0 }
-[[tests]]
-kind = "circle"
-radius = 4.0
-speed = 10.0
-duration = 2.0
-fps = 10.0
-[expect]
-max_mean_error = 0.001
-[sweep.grid]
-"model.states" = [2, 3, 4]
-"#,
-    )
-    .unwrap();
+    let extra = "[expect]\nmax_mean_error = 0.001\n[sweep.grid]\n\"model.states\" = [2, 3, 4]\n";
+    std::fs::write(&scenario, small_scenario("grid", extra)).unwrap();
     let out_dir = dir.path().join("out");
     let (scenario, out_text) = (scenario.to_str().unwrap(), out_dir.to_str().unwrap());
     let out = evitrack(&["sweep", scenario, "--out", out_text, "--check"], "");

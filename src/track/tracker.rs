@@ -142,6 +142,21 @@ struct Usable {
     mass: MassFunction,
 }
 
+impl FrameEstimate {
+    /// A frame with no estimate and no combined group; `flags` say why.
+    fn without_estimate(flags: FrameFlags) -> Self {
+        Self {
+            estimate: None,
+            group: Vec::new(),
+            conflict_level: None,
+            uncertainty: None,
+            plausibility: Vec::new(),
+            alternatives: Vec::new(),
+            flags,
+        }
+    }
+}
+
 /// The evidential tracker: a validated model and settings, with per-model precomputations.
 #[derive(Clone, Debug)]
 pub struct Tracker {
@@ -677,15 +692,7 @@ impl Tracker {
             .fold(0u32, |m, i| m | 1 << i);
         if usable_mask == 0 {
             flags.no_usable_feature = true;
-            return Ok(FrameEstimate {
-                estimate: None,
-                group: Vec::new(),
-                conflict_level: None,
-                uncertainty: None,
-                plausibility: Vec::new(),
-                alternatives: Vec::new(),
-                flags,
-            });
+            return Ok(FrameEstimate::without_estimate(flags));
         }
         // Conflict graph.
         let mut adj = vec![0u32; f];
@@ -776,15 +783,7 @@ impl Tracker {
         }
         let Some((level, group)) = chosen else {
             flags.no_usable_feature = true;
-            return Ok(FrameEstimate {
-                estimate: None,
-                group: Vec::new(),
-                conflict_level: None,
-                uncertainty: None,
-                plausibility: Vec::new(),
-                alternatives: Vec::new(),
-                flags,
-            });
+            return Ok(FrameEstimate::without_estimate(flags));
         };
         flags.excluded = lex(usable_mask & !group);
         let mut alts = Vec::with_capacity(alternatives.len());
