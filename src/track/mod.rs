@@ -5,7 +5,11 @@
 //! The tracker takes plain data (sample poses, refinings, likelihood vectors) so that it does not
 //! depend on how the model was trained.
 
+mod cells;
+mod conflict;
+mod estimate;
 mod model;
+mod select;
 mod settings;
 mod threshold;
 mod tracker;

@@ -1,4 +1,8 @@
-//! The per-frame tracker.
+//! The per-frame tracker: the frame types, the [`Tracker`] and its public entry points
+//! ([`Tracker::track`], [`Tracker::pairwise_conflicts`], [`Tracker::full_conflict_level`]).
+//! Sibling rooms hold the steps: `cells` (cells and state co-occurrences, built once per model),
+//! `conflict` (levels of conflict of pairs and groups), `select` (conflict graph and group
+//! selection) and `estimate` (plausibility, estimate and uncertainty).
 //!
 //! Work is done on the *cells* of the model: the classes of sample poses that share the same state
 //! in every feature. Every extended measurement function has focal sets that are unions of cells,
@@ -20,16 +24,14 @@ use std::collections::HashMap;
 
 use serde::{Deserialize, Serialize};
 
+use super::cells::Cells;
 use super::model::TrackerModel;
-use super::settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
+use super::select::Selection;
+use super::settings::{CheckedTrackSettings, TrackSettings};
 use super::TrackError;
 use crate::evidence::{
-    conflict_level_all, dempster_all, from_likelihoods, Constructor, LikelihoodIssue, MassFunction,
-    Refining, Subset,
+    from_likelihoods, Constructor, LikelihoodIssue, MassFunction, Refining, Subset,
 };
-
-/// Two levels of conflict closer than this are a tie.
-const TIE: f64 = 1e-12;
 
 /// Why a feature did not take part in a frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -85,7 +87,7 @@ impl FrameFlags {
 }
 
 /// Spread of the weights behind an estimate (the same weights the estimator used: relative
-/// plausibility, or pignistic probability for [`Estimator::Pignistic`]).
+/// plausibility, or pignistic probability for [`Estimator::Pignistic`](super::Estimator::Pignistic)).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Uncertainty {
     /// RMS distance of the sample poses from the estimate, weighted (mm).
@@ -127,19 +129,19 @@ pub struct FrameEstimate {
 }
 
 /// Measurement functions of a frame (`None` for unusable features) and the issues found.
-type Measured = (Vec<Option<Usable>>, Vec<(usize, FeatureIssue)>);
+pub(super) type Measured = (Vec<Option<Usable>>, Vec<(usize, FeatureIssue)>);
 
 /// A usable feature of one frame.
-struct Usable {
+pub(super) struct Usable {
     /// Contour on the feature's own frame, scaled to max 1.
-    contour: Vec<f64>,
+    pub(super) contour: Vec<f64>,
     /// The factor the contour was divided by (its maximum).
-    scale: f64,
+    pub(super) scale: f64,
     /// Consonant functions: level of every state (number of focal sets not containing it), so
     /// that the focal sets are {state : level ≤ k}.
-    level: Vec<u32>,
+    pub(super) level: Vec<u32>,
     /// Measurement function on the feature's own frame.
-    mass: MassFunction,
+    pub(super) mass: MassFunction,
 }
 
 impl FrameEstimate {
@@ -160,16 +162,16 @@ impl FrameEstimate {
 /// The evidential tracker: a validated model and settings, with per-model precomputations.
 #[derive(Clone, Debug)]
 pub struct Tracker {
-    model: TrackerModel,
-    settings: TrackSettings,
+    pub(super) model: TrackerModel,
+    pub(super) settings: TrackSettings,
     /// Cell of every sample pose.
-    cell_of: Vec<usize>,
+    pub(super) cell_of: Vec<usize>,
     /// Number of sample poses of every cell.
-    cell_size: Vec<usize>,
+    pub(super) cell_size: Vec<usize>,
     /// Per feature, the refining of its frame onto the cells.
-    to_cells: Vec<Refining>,
-    /// co[i][j][a] for i < j: the states of feature j that occur together with state a of i.
-    co: Vec<Vec<Vec<Subset>>>,
+    pub(super) to_cells: Vec<Refining>,
+    /// `co[i][j][a]` for i < j: the states of feature j that occur together with state a of i.
+    pub(super) co: Vec<Vec<Vec<Subset>>>,
 }
 
 impl Tracker {
@@ -179,53 +181,12 @@ impl Tracker {
     /// [`TrackError::Evidence`] if a refining onto the cells cannot be built (not expected for a
     /// validated model).
     pub fn new(model: TrackerModel, settings: CheckedTrackSettings) -> Result<Self, TrackError> {
-        let features = model.features();
-        let t = model.poses().len();
-        let mut ids: HashMap<Vec<usize>, usize> = HashMap::new();
-        let mut cell_of = Vec::with_capacity(t);
-        let mut cell_states: Vec<Vec<usize>> = Vec::new();
-        let mut cell_size = Vec::new();
-        for q in 0..t {
-            let key: Vec<usize> = features
-                .iter()
-                .map(|f| f.refining.assignment()[q])
-                .collect();
-            let next = cell_states.len();
-            let id = *ids.entry(key.clone()).or_insert(next);
-            if id == next {
-                cell_states.push(key);
-                cell_size.push(0);
-            }
-            cell_size[id] += 1;
-            cell_of.push(id);
-        }
-        let mut to_cells = Vec::with_capacity(features.len());
-        for (i, f) in features.iter().enumerate() {
-            let assignment: Vec<usize> = cell_states.iter().map(|s| s[i]).collect();
-            let r = Refining::from_assignment(f.refining.coarse_size(), &assignment).map_err(
-                |source| TrackError::Evidence {
-                    feature: Some(i),
-                    source,
-                },
-            )?;
-            to_cells.push(r);
-        }
-        let f = features.len();
-        let mut co = vec![Vec::new(); f];
-        for i in 0..f {
-            co[i] = vec![Vec::new(); f];
-            for j in i + 1..f {
-                let (ni, nj) = (
-                    features[i].refining.coarse_size(),
-                    features[j].refining.coarse_size(),
-                );
-                let mut rows = vec![Subset::empty(nj); ni];
-                for s in &cell_states {
-                    rows[s[i]].insert(s[j]);
-                }
-                co[i][j] = rows;
-            }
-        }
+        let Cells {
+            cell_of,
+            cell_size,
+            to_cells,
+            co,
+        } = Cells::new(&model)?;
         Ok(Tracker {
             model,
             settings: settings.get().clone(),
@@ -252,7 +213,7 @@ impl Tracker {
     }
 
     /// Measurement functions of one frame; issues for the unusable features.
-    fn measure(&self, likelihoods: &[Option<Vec<f64>>]) -> Result<Measured, TrackError> {
+    pub(super) fn measure(&self, likelihoods: &[Option<Vec<f64>>]) -> Result<Measured, TrackError> {
         let features = self.model.features();
         if likelihoods.len() != features.len() {
             return Err(TrackError::FeatureInputCount {
@@ -320,44 +281,6 @@ impl Tracker {
         Ok((usable, issues))
     }
 
-    /// Pairwise level of conflict of two usable features (i < j), on their own frames: focal sets
-    /// A ⊆ Θᵢ and B ⊆ Θⱼ have intersecting extensions iff B meets the states co-occurring with A.
-    fn pair_level(&self, i: usize, j: usize, a: &Usable, b: &Usable) -> f64 {
-        let rows = &self.co[i][j];
-        let s = match self.settings.constructor {
-            // Singletons: s = Σ_a p_i(a) Σ_{b co-occurring with a} p_j(b).
-            Constructor::Bayesian => {
-                let mut s = 0.0;
-                for (st, &ca) in a.contour.iter().enumerate() {
-                    if ca > 0.0 {
-                        let pl: f64 = rows[st].iter().map(|x| b.contour[x]).sum();
-                        s += ca * pl;
-                    }
-                }
-                s * a.scale * b.scale
-            }
-            // Consonant j: Pl_j(X) = max of its contour over X, so
-            // Pl_j(N(A)) = max over states a ∈ A of the best contour co-occurring with a.
-            Constructor::Consonant => {
-                let row_max: Vec<f64> = rows
-                    .iter()
-                    .map(|r| r.iter().map(|x| b.contour[x]).fold(0.0f64, f64::max))
-                    .collect();
-                let mut s = 0.0;
-                for (set, m) in a.mass.focal() {
-                    let pl = set.iter().map(|st| row_max[st]).fold(0.0f64, f64::max);
-                    s += m * pl;
-                }
-                s * b.scale
-            }
-        };
-        if s > 0.0 {
-            (-s.ln()).max(0.0)
-        } else {
-            f64::INFINITY
-        }
-    }
-
     /// Pairwise levels of conflict of a frame's features (`None` when either feature is unusable;
     /// the diagonal is 0 for usable features).
     ///
@@ -398,283 +321,6 @@ impl Tracker {
         Ok(self.level(all, &usable, &mut HashMap::new(), f64::INFINITY))
     }
 
-    /// Level of conflict of a group on the cells (0 for one feature, +∞ when not combinable),
-    /// memoised. With a finite `bound`, a group whose prefix (the group without its highest
-    /// feature) is already known to exceed the bound is not combined: K only grows as features
-    /// are added (Theorem 4.3), so it cannot be below the bound; it is recorded as +∞.
-    fn level(
-        &self,
-        group: u32,
-        usable: &[Option<Usable>],
-        memo: &mut HashMap<u32, f64>,
-        bound: f64,
-    ) -> f64 {
-        if group.count_ones() <= 1 {
-            return 0.0;
-        }
-        if let Some(&k) = memo.get(&group) {
-            return k;
-        }
-        let parent = group & !(1u32 << (31 - group.leading_zeros()));
-        let k = match memo.get(&parent) {
-            Some(&kp) if kp.is_nan() || kp > bound + TIE => f64::INFINITY,
-            _ => self
-                .fast_level(group, usable)
-                .unwrap_or_else(|| self.general_level(group, usable)),
-        };
-        memo.insert(group, k);
-        k
-    }
-
-    /// The group's measurement functions extended onto the cells (only the general path and the
-    /// pignistic estimator need them).
-    fn on_cells(&self, group: u32, usable: &[Option<Usable>]) -> Option<Vec<MassFunction>> {
-        members(group)
-            .filter_map(|i| {
-                usable[i]
-                    .as_ref()
-                    .map(|u| self.to_cells[i].extend(&u.mass).ok())
-            })
-            .collect()
-    }
-
-    /// Reference: Dempster's rule on the cells.
-    fn general_level(&self, group: u32, usable: &[Option<Usable>]) -> f64 {
-        self.on_cells(group, usable)
-            .and_then(|fs| conflict_level_all(&fs).ok())
-            .unwrap_or(f64::INFINITY)
-    }
-
-    /// Fast exact level of conflict of a group; `None` when the general path must be used.
-    fn fast_level(&self, group: u32, usable: &[Option<Usable>]) -> Option<f64> {
-        let ms: Vec<(usize, &Usable)> = members(group)
-            .filter_map(|i| usable[i].as_ref().map(|u| (i, u)))
-            .collect();
-        match self.settings.constructor {
-            Constructor::Bayesian => self.bayesian_level(&ms),
-            Constructor::Consonant => self.consonant_level(&ms),
-        }
-    }
-
-    /// Bayesian functions: the extended focal sets are blocks, so the non-conflicting mass is the
-    /// sum, over the distinct state tuples of the group that occur on the cells, of the product of
-    /// the singleton masses. Tuples are numbered feature by feature with a dense table.
-    fn bayesian_level(&self, ms: &[(usize, &Usable)]) -> Option<f64> {
-        let cells = self.cell_count();
-        let mut id = vec![0u32; cells];
-        let mut count = 1usize;
-        let mut remap: Vec<u32> = Vec::new();
-        // With every feature of the model, the tuples are the cells themselves.
-        let every = ms.len() == self.to_cells.len();
-        if every {
-            for (u, idu) in id.iter_mut().enumerate() {
-                *idu = u as u32;
-            }
-            count = cells;
-        }
-        for &(i, _) in ms.iter().filter(|_| !every) {
-            let st = self.to_cells[i].assignment();
-            let n = self.to_cells[i].coarse_size();
-            remap.clear();
-            remap.resize(count * n, u32::MAX);
-            let mut next = 0u32;
-            for (idu, &su) in id.iter_mut().zip(st) {
-                let key = *idu as usize * n + su;
-                if remap[key] == u32::MAX {
-                    remap[key] = next;
-                    next += 1;
-                }
-                *idu = remap[key];
-            }
-            count = next as usize;
-        }
-        let mut seen = vec![false; count];
-        let mut s = 0.0;
-        let mut possible = false;
-        for (u, &idu) in id.iter().enumerate() {
-            if !std::mem::replace(&mut seen[idu as usize], true) {
-                let mut prod = 1.0;
-                let mut positive = true;
-                for &(i, m) in ms {
-                    let c = m.contour[self.to_cells[i].assignment()[u]];
-                    positive &= c > 0.0;
-                    prod *= c;
-                }
-                possible |= positive;
-                s += prod;
-            }
-        }
-        if !possible {
-            return Some(f64::INFINITY);
-        }
-        // Scaled contours keep the sum away from underflow; if it still underflows, let the
-        // general path (which renormalises at every step) decide.
-        if s.is_nan() || s <= 1e-280 {
-            return None;
-        }
-        let log_scale: f64 = ms.iter().map(|(_, m)| m.scale.ln()).sum();
-        Some((-(s.ln() + log_scale)).max(0.0))
-    }
-
-    /// Consonant functions: focal sets are down-sets in level space, and a product of down-sets
-    /// (one focal set per feature) meets the cells iff it meets the Pareto-minimal level vectors
-    /// of the cells. Dempster's rule therefore runs on that (small) set of minimal points.
-    fn consonant_level(&self, ms: &[(usize, &Usable)]) -> Option<f64> {
-        let d = ms.len();
-        let cells = self.cell_count();
-        let mut levels = vec![0u32; cells * d];
-        for (u, row) in levels.chunks_exact_mut(d).enumerate() {
-            for (l, &(i, m)) in row.iter_mut().zip(ms) {
-                *l = m.level[self.to_cells[i].assignment()[u]];
-            }
-        }
-        let mut order: Vec<(u32, u32)> = levels
-            .chunks_exact(d)
-            .enumerate()
-            .map(|(u, row)| (row.iter().sum::<u32>(), u as u32))
-            .collect();
-        order.sort_unstable();
-        let mut minimal: Vec<usize> = Vec::new();
-        for &(_, u) in &order {
-            let p = &levels[u as usize * d..(u as usize + 1) * d];
-            let dominated = minimal.iter().any(|&q| {
-                levels[q * d..(q + 1) * d]
-                    .iter()
-                    .zip(p)
-                    .all(|(a, b)| a <= b)
-            });
-            if !dominated {
-                minimal.push(u as usize);
-            }
-        }
-        let frame = minimal.len();
-        let mut fs = Vec::with_capacity(d);
-        for &(i, m) in ms {
-            let st = self.to_cells[i].assignment();
-            let pairs = m
-                .mass
-                .focal()
-                .map(|(a, x)| {
-                    let mut set = Subset::empty(frame);
-                    for (p, &u) in minimal.iter().enumerate() {
-                        if a.contains(st[u]) {
-                            set.insert(p);
-                        }
-                    }
-                    (set, x)
-                })
-                .collect();
-            fs.push(MassFunction::unnormalised(frame, pairs).ok()?);
-        }
-        conflict_level_all(&fs).ok()
-    }
-
-    /// Relative plausibility of the sample poses under a group: the normalised product of the
-    /// members' contours (the fast path; equal to the relative plausibility of the combination).
-    fn plausibility(&self, group: u32, usable: &[Option<Usable>]) -> Option<Vec<f64>> {
-        let cells = self.cell_count();
-        let mut w = vec![1.0; cells];
-        for (u, wu) in w.iter_mut().enumerate() {
-            for (i, m) in usable.iter().enumerate() {
-                if group >> i & 1 == 1 {
-                    if let Some(m) = m {
-                        *wu *= m.contour[self.to_cells[i].assignment()[u]];
-                    }
-                }
-            }
-        }
-        let mut z: f64 = w
-            .iter()
-            .zip(&self.cell_size)
-            .map(|(x, &c)| x * c as f64)
-            .sum();
-        if !(z > 0.0 && z.is_finite()) {
-            // Underflow with many small factors: redo in the log domain.
-            let mut logs = vec![0.0f64; cells];
-            for (u, lu) in logs.iter_mut().enumerate() {
-                for (i, m) in usable.iter().enumerate() {
-                    if group >> i & 1 == 1 {
-                        if let Some(m) = m {
-                            *lu += m.contour[self.to_cells[i].assignment()[u]].ln();
-                        }
-                    }
-                }
-            }
-            let max = logs.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
-            if !max.is_finite() {
-                return None;
-            }
-            for (x, l) in w.iter_mut().zip(&logs) {
-                *x = (l - max).exp();
-            }
-            z = w
-                .iter()
-                .zip(&self.cell_size)
-                .map(|(x, &c)| x * c as f64)
-                .sum();
-        }
-        Some(self.cell_of.iter().map(|&u| w[u] / z).collect())
-    }
-
-    /// Pignistic probability of the sample poses under a combined function on the cells.
-    fn pignistic(&self, on_cells: &MassFunction) -> Vec<f64> {
-        let mut bet = vec![0.0; self.cell_count()];
-        for (set, m) in on_cells.focal() {
-            let size: usize = set.iter().map(|u| self.cell_size[u]).sum();
-            if size == 0 {
-                continue;
-            }
-            for u in set.iter() {
-                bet[u] += m / size as f64;
-            }
-        }
-        self.cell_of.iter().map(|&u| bet[u]).collect()
-    }
-
-    /// Estimate, weights and uncertainty of one group.
-    fn estimate_group(
-        &self,
-        group: u32,
-        usable: &[Option<Usable>],
-    ) -> Option<([f64; 2], Vec<f64>, Uncertainty)> {
-        let pl = self.plausibility(group, usable)?;
-        let poses = self.model.poses();
-        let weights = match self.settings.estimator {
-            Estimator::Pignistic => {
-                let combined = dempster_all(&self.on_cells(group, usable)?).ok()?.mass?;
-                self.pignistic(&combined)
-            }
-            _ => pl.clone(),
-        };
-        let estimate = match self.settings.estimator {
-            Estimator::Map => {
-                let mut best = 0;
-                for (q, &x) in weights.iter().enumerate() {
-                    if x > weights[best] {
-                        best = q;
-                    }
-                }
-                poses[best]
-            }
-            _ => weighted_mean(&weights, poses)?,
-        };
-        let uncertainty = uncertainty(&weights, poses, estimate, self.settings.uncertainty_mass);
-        Some((estimate, pl, uncertainty))
-    }
-
-    /// The fallback feature: lowest validation error (features without one after those with one),
-    /// then lowest index.
-    fn fallback_feature(&self, usable: &[Option<Usable>]) -> Option<usize> {
-        let features = self.model.features();
-        (0..usable.len())
-            .filter(|&i| usable[i].is_some())
-            .min_by(|&a, &b| {
-                let ea = features[a].validation_error.unwrap_or(f64::INFINITY);
-                let eb = features[b].validation_error.unwrap_or(f64::INFINITY);
-                ea.total_cmp(&eb).then(a.cmp(&b))
-            })
-    }
-
     /// Track one frame: one entry per feature, `Some(likelihoods over its states)` or `None` when
     /// the feature is missing. Bad likelihoods never fail: the feature is left out and flagged.
     ///
@@ -694,93 +340,12 @@ impl Tracker {
             flags.no_usable_feature = true;
             return Ok(FrameEstimate::without_estimate(flags));
         }
-        // Conflict graph.
-        let mut adj = vec![0u32; f];
-        for i in 0..f {
-            let Some(a) = &usable[i] else { continue };
-            for j in i + 1..f {
-                let Some(b) = &usable[j] else { continue };
-                let k = self.pair_level(i, j, a, b);
-                if k.is_finite() && k <= self.settings.conflict_threshold {
-                    adj[i] |= 1 << j;
-                    adj[j] |= 1 << i;
-                }
-            }
-        }
-        let groups = cliques(usable_mask, &adj, f);
-        let mut memo: HashMap<u32, f64> = HashMap::new();
-        let policy = self.settings.selection;
-        let min_size = policy.min_size();
-        let mut chosen: Option<(f64, u32)> = None;
-        let mut alternatives: Vec<(f64, u32)> = Vec::new();
-        match policy {
-            SelectionPolicy::LargestSubset => {
-                // Groups come by increasing size in lexicographic order: scan from the largest.
-                let mut size = groups.last().map_or(0, |g| g.count_ones());
-                while size >= 1 && chosen.is_none() {
-                    for &g in groups.iter().filter(|g| g.count_ones() == size) {
-                        let k = self.level(g, &usable, &mut memo, f64::INFINITY);
-                        if k.is_finite() && chosen.is_none_or(|(best, _)| k < best - TIE) {
-                            chosen = Some((k, g));
-                        }
-                    }
-                    size -= 1;
-                }
-                // A single feature while several are usable means no pair is compatible.
-                if chosen.is_some_and(|(_, g)| g.count_ones() == 1) && usable_mask.count_ones() > 1
-                {
-                    chosen = None;
-                }
-            }
-            SelectionPolicy::LowestConflict { .. } => {
-                for &g in groups
-                    .iter()
-                    .filter(|g| g.count_ones() as usize >= min_size)
-                {
-                    let bound = chosen.map_or(f64::INFINITY, |(k, _)| k);
-                    let k = self.level(g, &usable, &mut memo, bound);
-                    if k.is_finite() {
-                        let better = match chosen {
-                            None => true,
-                            Some((best, bg)) => {
-                                k < best - TIE
-                                    || (k <= best + TIE && g.count_ones() > bg.count_ones())
-                            }
-                        };
-                        if better {
-                            chosen = Some((k, g));
-                        }
-                    }
-                }
-            }
-            SelectionPolicy::Splitting { .. } => {
-                for &g in groups
-                    .iter()
-                    .rev()
-                    .filter(|g| g.count_ones() as usize >= min_size)
-                {
-                    if alternatives.iter().any(|&(_, a)| g & a == g) {
-                        continue;
-                    }
-                    let k = self.level(g, &usable, &mut memo, f64::INFINITY);
-                    if k.is_finite() {
-                        alternatives.push((k, g));
-                    }
-                }
-                alternatives.sort_by(|a, b| {
-                    b.1.count_ones()
-                        .cmp(&a.1.count_ones())
-                        .then(a.0.total_cmp(&b.0))
-                        .then(lex(a.1).cmp(&lex(b.1)))
-                });
-                chosen = alternatives.first().copied();
-            }
-        }
-        if chosen.is_none() {
-            flags.fallback = true;
-            alternatives.clear();
-            chosen = self.fallback_feature(&usable).map(|i| (0.0, 1u32 << i));
-        }
+        let Selection {
+            chosen,
+            alternatives,
+            fallback,
+        } = self.select(&usable, usable_mask);
+        flags.fallback = fallback;
         let Some((level, group)) = chosen else {
             flags.no_usable_feature = true;
             return Ok(FrameEstimate::without_estimate(flags));
@@ -812,132 +377,21 @@ impl Tracker {
 }
 
 /// Feature indices of a group mask, ascending (also its lexicographic key).
-fn lex(mask: u32) -> Vec<usize> {
+pub(super) fn lex(mask: u32) -> Vec<usize> {
     members(mask).collect()
 }
 
 /// Feature indices of a group mask, ascending.
-fn members(mask: u32) -> impl Iterator<Item = usize> {
+pub(super) fn members(mask: u32) -> impl Iterator<Item = usize> {
     (0..32).filter(move |i| mask >> i & 1 == 1)
 }
 
-/// All complete subgraphs among the usable features, grown bottom-up: the groups of size d + 1 are
-/// the groups of size d extended by a higher-indexed feature adjacent to all their members.
-/// Returned by increasing size, lexicographic within a size.
-fn cliques(usable: u32, adj: &[u32], f: usize) -> Vec<u32> {
-    let mut all: Vec<u32> = (0..f)
-        .filter(|&i| usable >> i & 1 == 1)
-        .map(|i| 1u32 << i)
-        .collect();
-    let mut start = 0;
-    while start < all.len() {
-        let end = all.len();
-        for g in start..end {
-            let group = all[g];
-            let top = 31 - group.leading_zeros() as usize;
-            for (j, &aj) in adj.iter().enumerate().take(f).skip(top + 1) {
-                if usable >> j & 1 == 1 && aj & group == group {
-                    all.push(group | 1 << j);
-                }
-            }
-        }
-        start = end;
-    }
-    all
-}
-
-/// Weighted RMS distance from `centre` and the smallest radius holding `share` of the weight.
-fn uncertainty(weights: &[f64], poses: &[[f64; 2]], centre: [f64; 2], share: f64) -> Uncertainty {
-    // Squared distances: the quantile is the same, and no square root per pose.
-    let mut items: Vec<(f64, f64)> = weights
-        .iter()
-        .zip(poses)
-        .filter(|(w, _)| **w > 0.0)
-        .map(|(&w, p)| {
-            let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
-            (dx * dx + dy * dy, w)
-        })
-        .collect();
-    let total: f64 = items.iter().map(|x| x.1).sum();
-    if items.is_empty() || total <= 0.0 {
-        return Uncertainty {
-            spread: 0.0,
-            radius: 0.0,
-        };
-    }
-    let spread = (items.iter().map(|(d2, w)| d2 * w).sum::<f64>() / total).sqrt();
-    let radius = weighted_quantile(&mut items, share * total).sqrt();
-    Uncertainty { spread, radius }
-}
-
-/// Σ w q / Σ w (poses are validated finite, weights are finite and non-negative by construction).
-fn weighted_mean(weights: &[f64], poses: &[[f64; 2]]) -> Option<[f64; 2]> {
-    let (mut sx, mut sy, mut sw) = (0.0, 0.0, 0.0);
-    for (w, p) in weights.iter().zip(poses) {
-        sx += w * p[0];
-        sy += w * p[1];
-        sw += w;
-    }
-    (sw > 0.0 && sw.is_finite()).then(|| [sx / sw, sy / sw])
-}
-
-/// Smallest distance d such that the weight of items with distance ≤ d reaches `target`
-/// (expected linear time by repeated selection).
-fn weighted_quantile(items: &mut [(f64, f64)], mut target: f64) -> f64 {
-    let mut slice = items;
-    let mut last = 0.0;
-    loop {
-        if slice.is_empty() {
-            return last;
-        }
-        let mid = slice.len() / 2;
-        slice.select_nth_unstable_by(mid, |a, b| a.0.total_cmp(&b.0));
-        let below: f64 = slice[..mid].iter().map(|x| x.1).sum();
-        let (d, w) = slice[mid];
-        if below >= target && mid > 0 {
-            slice = &mut slice[..mid];
-        } else if below + w >= target {
-            return d;
-        } else {
-            target -= below + w;
-            last = d;
-            let rest = std::mem::take(&mut slice);
-            slice = &mut rest[mid + 1..];
-        }
-    }
-}
-
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
-    use crate::evidence::{conflict, level_of_conflict};
-    use crate::track::{FeatureModel, TrackSettings};
+    use crate::track::{FeatureModel, SelectionPolicy};
 
-    #[test]
-    fn cliques_grow_bottom_up() {
-        // Triangle 0-1-2 plus edge 2-3.
-        let adj = [0b0110, 0b0101, 0b1011, 0b0100];
-        let g = cliques(0b1111, &adj, 4);
-        assert_eq!(
-            g,
-            vec![0b0001, 0b0010, 0b0100, 0b1000, 0b0011, 0b0101, 0b0110, 0b1100, 0b0111]
-        );
-        // Without feature 1 usable.
-        let g = cliques(0b1101, &adj, 4);
-        assert_eq!(g, vec![0b0001, 0b0100, 0b1000, 0b0101, 0b1100]);
-    }
-
-    #[test]
-    fn weighted_quantile_by_hand() {
-        let mut items = vec![(3.0, 0.25), (1.0, 0.25), (2.0, 0.25), (4.0, 0.25)];
-        assert_eq!(weighted_quantile(&mut items, 0.5), 2.0);
-        assert_eq!(weighted_quantile(&mut items, 0.51), 3.0);
-        assert_eq!(weighted_quantile(&mut items, 1.0), 4.0);
-        assert_eq!(weighted_quantile(&mut items, 1.0 + 1e-9), 4.0);
-        assert_eq!(weighted_quantile(&mut items, 0.1), 1.0);
-    }
-
-    fn tiny_tracker(constructor: crate::evidence::Constructor) -> Tracker {
+    pub(in crate::track) fn tiny_tracker(constructor: crate::evidence::Constructor) -> Tracker {
         // 6 poses on a line; three features with different partitions.
         let poses: Vec<[f64; 2]> = (0..6).map(|i| [i as f64, 0.0]).collect();
         let feats = [
@@ -958,108 +412,6 @@ mod tests {
             ..TrackSettings::default()
         };
         Tracker::new(model, settings.check().unwrap()).unwrap()
-    }
-
-    #[test]
-    fn coarse_pairwise_conflict_equals_conflict_on_poses() {
-        for c in [
-            crate::evidence::Constructor::Bayesian,
-            crate::evidence::Constructor::Consonant,
-        ] {
-            let t = tiny_tracker(c);
-            let lik = vec![
-                Some(vec![0.9, 0.2]),
-                Some(vec![0.1, 0.3, 0.7]),
-                Some(vec![0.6, 0.5]),
-            ];
-            let k = t.pairwise_conflicts(&lik).unwrap();
-            for i in 0..3 {
-                for j in (0..3).filter(|&j| j != i) {
-                    let mi = from_likelihoods(c, lik[i].as_ref().unwrap()).unwrap().mass;
-                    let mj = from_likelihoods(c, lik[j].as_ref().unwrap()).unwrap().mass;
-                    let f = t.model().features();
-                    let ei = f[i].refining.extend(&mi).unwrap();
-                    let ej = f[j].refining.extend(&mj).unwrap();
-                    let reference = level_of_conflict(conflict(&ei, &ej).unwrap());
-                    let got = k[i][j].unwrap();
-                    assert!(
-                        (got - reference).abs() < 1e-12,
-                        "{c:?} {i} {j}: {got} vs {reference}"
-                    );
-                }
-            }
-            assert_eq!(t.cell_count(), 6);
-        }
-    }
-
-    #[test]
-    fn fast_group_levels_equal_the_general_combination() {
-        use crate::evidence::Constructor;
-        use rand::{Rng, SeedableRng};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(99);
-        let (mut finite, mut infinite) = (0, 0);
-        for constructor in [Constructor::Bayesian, Constructor::Consonant] {
-            for _model in 0..4 {
-                let t_poses = 15;
-                let poses: Vec<[f64; 2]> = (0..t_poses).map(|q| [q as f64, 0.0]).collect();
-                let states: Vec<usize> = (0..5).map(|_| rng.random_range(2..6)).collect();
-                let features = states
-                    .iter()
-                    .map(|&n| {
-                        // First n poses take every state so the refining is valid.
-                        let a: Vec<usize> = (0..t_poses)
-                            .map(|q| if q < n { q } else { rng.random_range(0..n) })
-                            .collect();
-                        FeatureModel {
-                            refining: Refining::from_assignment(n, &a).unwrap(),
-                            validation_error: None,
-                        }
-                    })
-                    .collect();
-                let model = TrackerModel::new(poses, features).unwrap();
-                let settings = TrackSettings {
-                    constructor,
-                    ..TrackSettings::default()
-                };
-                let t = Tracker::new(model, settings.check().unwrap()).unwrap();
-                for _frame in 0..10 {
-                    let lik: Vec<Option<Vec<f64>>> = states
-                        .iter()
-                        .map(|&n| {
-                            let mut g: Vec<f64> =
-                                (0..n).map(|_| rng.random_range(0.0..1.0)).collect();
-                            // Some exact zeros, so that some groups are in total conflict.
-                            for x in g.iter_mut() {
-                                if rng.random_bool(0.5) {
-                                    *x = 0.0;
-                                }
-                            }
-                            g[rng.random_range(0..n)] = 1.0;
-                            Some(g)
-                        })
-                        .collect();
-                    let (usable, _) = t.measure(&lik).unwrap();
-                    for group in 1u32..32 {
-                        let general = t.general_level(group, &usable);
-                        let fast = t.fast_level(group, &usable).unwrap();
-                        if general.is_finite() {
-                            assert!(
-                                (fast - general).abs() < 1e-12 * (1.0 + general),
-                                "{fast} vs {general}"
-                            );
-                            finite += 1;
-                        } else {
-                            assert_eq!(fast, f64::INFINITY);
-                            infinite += 1;
-                        }
-                    }
-                }
-            }
-        }
-        assert!(
-            finite > 100 && infinite > 100,
-            "finite {finite}, infinite {infinite}"
-        );
     }
 
     use proptest::prelude::*;

@@ -1,0 +1,85 @@
+//! The cells of a model: the classes of sample poses that share the same state in every feature,
+//! with every feature's refining onto them and the state co-occurrences between features. Built
+//! once per model by [`Tracker::new`](super::Tracker::new); the per-frame work runs on them.
+
+use std::collections::HashMap;
+
+use super::model::TrackerModel;
+use super::TrackError;
+use crate::evidence::{Refining, Subset};
+
+/// The cells of a model and the state co-occurrences of its features.
+pub(super) struct Cells {
+    /// Cell of every sample pose.
+    pub(super) cell_of: Vec<usize>,
+    /// Number of sample poses of every cell.
+    pub(super) cell_size: Vec<usize>,
+    /// Per feature, the refining of its frame onto the cells.
+    pub(super) to_cells: Vec<Refining>,
+    /// `co[i][j][a]` for i < j: the states of feature j that occur together with state a of i.
+    pub(super) co: Vec<Vec<Vec<Subset>>>,
+}
+
+impl Cells {
+    /// The cells of the model's sample poses, every feature's refining onto them and the state
+    /// co-occurrences.
+    ///
+    /// # Errors
+    /// [`TrackError::Evidence`] if a refining onto the cells cannot be built (not expected for a
+    /// validated model).
+    pub(super) fn new(model: &TrackerModel) -> Result<Self, TrackError> {
+        let features = model.features();
+        let t = model.poses().len();
+        let mut ids: HashMap<Vec<usize>, usize> = HashMap::new();
+        let mut cell_of = Vec::with_capacity(t);
+        let mut cell_states: Vec<Vec<usize>> = Vec::new();
+        let mut cell_size = Vec::new();
+        for q in 0..t {
+            let key: Vec<usize> = features
+                .iter()
+                .map(|f| f.refining.assignment()[q])
+                .collect();
+            let next = cell_states.len();
+            let id = *ids.entry(key.clone()).or_insert(next);
+            if id == next {
+                cell_states.push(key);
+                cell_size.push(0);
+            }
+            cell_size[id] += 1;
+            cell_of.push(id);
+        }
+        let mut to_cells = Vec::with_capacity(features.len());
+        for (i, f) in features.iter().enumerate() {
+            let assignment: Vec<usize> = cell_states.iter().map(|s| s[i]).collect();
+            let r = Refining::from_assignment(f.refining.coarse_size(), &assignment).map_err(
+                |source| TrackError::Evidence {
+                    feature: Some(i),
+                    source,
+                },
+            )?;
+            to_cells.push(r);
+        }
+        let f = features.len();
+        let mut co = vec![Vec::new(); f];
+        for i in 0..f {
+            co[i] = vec![Vec::new(); f];
+            for j in i + 1..f {
+                let (ni, nj) = (
+                    features[i].refining.coarse_size(),
+                    features[j].refining.coarse_size(),
+                );
+                let mut rows = vec![Subset::empty(nj); ni];
+                for s in &cell_states {
+                    rows[s[i]].insert(s[j]);
+                }
+                co[i][j] = rows;
+            }
+        }
+        Ok(Cells {
+            cell_of,
+            cell_size,
+            to_cells,
+            co,
+        })
+    }
+}

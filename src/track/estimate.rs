@@ -1,0 +1,178 @@
+//! From a chosen group to a pose estimate: the relative plausibility of the sample poses (or
+//! their pignistic probability), the estimator (weighted mean or MAP) and the uncertainty
+//! (weighted spread and quantile radius).
+
+use super::settings::Estimator;
+use super::tracker::{Tracker, Uncertainty, Usable};
+use crate::evidence::{dempster_all, MassFunction};
+
+impl Tracker {
+    /// Relative plausibility of the sample poses under a group: the normalised product of the
+    /// members' contours (the fast path; equal to the relative plausibility of the combination).
+    fn plausibility(&self, group: u32, usable: &[Option<Usable>]) -> Option<Vec<f64>> {
+        let cells = self.cell_count();
+        let mut w = vec![1.0; cells];
+        for (u, wu) in w.iter_mut().enumerate() {
+            for (i, m) in usable.iter().enumerate() {
+                if group >> i & 1 == 1 {
+                    if let Some(m) = m {
+                        *wu *= m.contour[self.to_cells[i].assignment()[u]];
+                    }
+                }
+            }
+        }
+        let mut z: f64 = w
+            .iter()
+            .zip(&self.cell_size)
+            .map(|(x, &c)| x * c as f64)
+            .sum();
+        if !(z > 0.0 && z.is_finite()) {
+            // Underflow with many small factors: redo in the log domain.
+            let mut logs = vec![0.0f64; cells];
+            for (u, lu) in logs.iter_mut().enumerate() {
+                for (i, m) in usable.iter().enumerate() {
+                    if group >> i & 1 == 1 {
+                        if let Some(m) = m {
+                            *lu += m.contour[self.to_cells[i].assignment()[u]].ln();
+                        }
+                    }
+                }
+            }
+            let max = logs.iter().fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+            if !max.is_finite() {
+                return None;
+            }
+            for (x, l) in w.iter_mut().zip(&logs) {
+                *x = (l - max).exp();
+            }
+            z = w
+                .iter()
+                .zip(&self.cell_size)
+                .map(|(x, &c)| x * c as f64)
+                .sum();
+        }
+        Some(self.cell_of.iter().map(|&u| w[u] / z).collect())
+    }
+
+    /// Pignistic probability of the sample poses under a combined function on the cells.
+    fn pignistic(&self, on_cells: &MassFunction) -> Vec<f64> {
+        let mut bet = vec![0.0; self.cell_count()];
+        for (set, m) in on_cells.focal() {
+            let size: usize = set.iter().map(|u| self.cell_size[u]).sum();
+            if size == 0 {
+                continue;
+            }
+            for u in set.iter() {
+                bet[u] += m / size as f64;
+            }
+        }
+        self.cell_of.iter().map(|&u| bet[u]).collect()
+    }
+
+    /// Estimate, weights and uncertainty of one group.
+    pub(super) fn estimate_group(
+        &self,
+        group: u32,
+        usable: &[Option<Usable>],
+    ) -> Option<([f64; 2], Vec<f64>, Uncertainty)> {
+        let pl = self.plausibility(group, usable)?;
+        let poses = self.model.poses();
+        let weights = match self.settings.estimator {
+            Estimator::Pignistic => {
+                let combined = dempster_all(&self.on_cells(group, usable)?).ok()?.mass?;
+                self.pignistic(&combined)
+            }
+            _ => pl.clone(),
+        };
+        let estimate = match self.settings.estimator {
+            Estimator::Map => {
+                let mut best = 0;
+                for (q, &x) in weights.iter().enumerate() {
+                    if x > weights[best] {
+                        best = q;
+                    }
+                }
+                poses[best]
+            }
+            _ => weighted_mean(&weights, poses)?,
+        };
+        let uncertainty = uncertainty(&weights, poses, estimate, self.settings.uncertainty_mass);
+        Some((estimate, pl, uncertainty))
+    }
+}
+
+/// Weighted RMS distance from `centre` and the smallest radius holding `share` of the weight.
+fn uncertainty(weights: &[f64], poses: &[[f64; 2]], centre: [f64; 2], share: f64) -> Uncertainty {
+    // Squared distances: the quantile is the same, and no square root per pose.
+    let mut items: Vec<(f64, f64)> = weights
+        .iter()
+        .zip(poses)
+        .filter(|(w, _)| **w > 0.0)
+        .map(|(&w, p)| {
+            let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
+            (dx * dx + dy * dy, w)
+        })
+        .collect();
+    let total: f64 = items.iter().map(|x| x.1).sum();
+    if items.is_empty() || total <= 0.0 {
+        return Uncertainty {
+            spread: 0.0,
+            radius: 0.0,
+        };
+    }
+    let spread = (items.iter().map(|(d2, w)| d2 * w).sum::<f64>() / total).sqrt();
+    let radius = weighted_quantile(&mut items, share * total).sqrt();
+    Uncertainty { spread, radius }
+}
+
+/// Σ w q / Σ w (poses are validated finite, weights are finite and non-negative by construction).
+fn weighted_mean(weights: &[f64], poses: &[[f64; 2]]) -> Option<[f64; 2]> {
+    let (mut sx, mut sy, mut sw) = (0.0, 0.0, 0.0);
+    for (w, p) in weights.iter().zip(poses) {
+        sx += w * p[0];
+        sy += w * p[1];
+        sw += w;
+    }
+    (sw > 0.0 && sw.is_finite()).then(|| [sx / sw, sy / sw])
+}
+
+/// Smallest distance d such that the weight of items with distance ≤ d reaches `target`
+/// (expected linear time by repeated selection).
+fn weighted_quantile(items: &mut [(f64, f64)], mut target: f64) -> f64 {
+    let mut slice = items;
+    let mut last = 0.0;
+    loop {
+        if slice.is_empty() {
+            return last;
+        }
+        let mid = slice.len() / 2;
+        slice.select_nth_unstable_by(mid, |a, b| a.0.total_cmp(&b.0));
+        let below: f64 = slice[..mid].iter().map(|x| x.1).sum();
+        let (d, w) = slice[mid];
+        if below >= target && mid > 0 {
+            slice = &mut slice[..mid];
+        } else if below + w >= target {
+            return d;
+        } else {
+            target -= below + w;
+            last = d;
+            let rest = std::mem::take(&mut slice);
+            slice = &mut rest[mid + 1..];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weighted_quantile_by_hand() {
+        let mut items = vec![(3.0, 0.25), (1.0, 0.25), (2.0, 0.25), (4.0, 0.25)];
+        assert_eq!(weighted_quantile(&mut items, 0.5), 2.0);
+        assert_eq!(weighted_quantile(&mut items, 0.51), 3.0);
+        assert_eq!(weighted_quantile(&mut items, 1.0), 4.0);
+        assert_eq!(weighted_quantile(&mut items, 1.0 + 1e-9), 4.0);
+        assert_eq!(weighted_quantile(&mut items, 0.1), 1.0);
+    }
+}
