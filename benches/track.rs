@@ -6,7 +6,7 @@
 //! 10 and x + 2y, 2x − y with 8 (every sample pose is its own cell).
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::evidence::{Constructor, Refining};
-use evitrack::track::{FeatureModel, TrackSettings, Tracker, TrackerModel};
+use evitrack::track::{TrackSettings, TrackedFeature, Tracker, TrackerModel};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
@@ -39,7 +39,7 @@ fn setup(feats: &[Feat], constructor: Constructor, seed: u64) -> (Tracker, Vec<O
             .collect();
         let refining =
             Refining::from_assignment(f.states, &assignment).expect("every bin holds a node");
-        features.push(FeatureModel {
+        features.push(TrackedFeature {
             refining,
             validation_error: None,
         });

@@ -13,6 +13,7 @@
 
 pub mod adaptive;
 pub mod dataset;
+pub mod estimator;
 pub mod evidence;
 pub mod experiment;
 pub mod features;
@@ -20,5 +21,6 @@ pub mod hmm;
 pub mod model;
 pub mod report;
 pub mod scenario;
+pub mod seed;
 pub mod sim;
 pub mod track;

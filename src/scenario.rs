@@ -13,10 +13,11 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
-use crate::features::FeatureConfig;
+use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
+use crate::seed;
 use crate::sim::{Motion, SimSettings};
-use crate::track::TrackSettings;
+use crate::track::{TrackSettings, MAX_FEATURES};
 
 /// Failures while reading or checking a scenario.
 #[derive(Debug, thiserror::Error)]
@@ -153,10 +154,11 @@ impl Default for Scenario {
     }
 }
 
-/// The default validation motion: a seeded smooth random path, 10 s at 10 frames/s.
+/// The default validation motion: a smooth random path, 10 s at 10 frames/s, its seed derived
+/// from the scenario's master seed.
 pub fn default_validation_motion() -> Motion {
     Motion::RandomPath {
-        seed: 11,
+        seed: None,
         speed: 8.0,
         duration: 10.0,
         fps: 10.0,
@@ -177,9 +179,11 @@ pub fn default_test_motion() -> Motion {
 }
 
 impl Scenario {
-    /// Checks everything before anything runs: every section's own `check()`, the state counts
-    /// against the number of features, and the values deserialisation cannot check.
-    pub fn check(&self) -> Result<(), ScenarioError> {
+    /// Checks everything before anything runs: every section's own `check()`, the state counts,
+    /// the feature count and the selection sizes against the number of features, and the values
+    /// deserialisation cannot check. Random paths without a seed get one derived from the master
+    /// seed. Only a [`CheckedScenario`] can be run.
+    pub fn check(&self) -> Result<CheckedScenario, ScenarioError> {
         let invalid = |message: String| ScenarioError::Invalid {
             scenario: self.name.clone(),
             message,
@@ -206,6 +210,21 @@ impl Scenario {
             .features
             .check()
             .map_err(|e| invalid(format!("[features]: {e}")))?;
+        if features.len() > MAX_FEATURES {
+            return Err(invalid(format!(
+                "[features]: {} features, but the tracker takes at most {MAX_FEATURES}: use fewer \
+                 size-function lines or drop the barycentre",
+                features.len()
+            )));
+        }
+        let min_size = self.track.selection.min_size();
+        if min_size > features.len() {
+            return Err(invalid(format!(
+                "[track]: selection `min_size = {min_size}` is more than the {} features: no group \
+                 could ever be chosen",
+                features.len()
+            )));
+        }
         self.model
             .check()
             .map_err(|e| invalid(format!("[model]: {e}")))?;
@@ -257,7 +276,73 @@ impl Scenario {
                 )));
             }
         }
-        Ok(())
+        let mut scenario = self.clone();
+        scenario.validation = self
+            .validation
+            .as_ref()
+            .map(|m| m.with_default_seed(seed::for_validation_path(self.seed)));
+        scenario.tests = self
+            .tests
+            .iter()
+            .enumerate()
+            .map(|(k, m)| m.with_default_seed(seed::derive(self.seed, &format!("test{k}-path"))))
+            .collect();
+        Ok(CheckedScenario {
+            raw: self.clone(),
+            scenario,
+            features,
+        })
+    }
+}
+
+/// A scenario that passed [`Scenario::check`], with its random paths' seeds resolved and its
+/// feature set built: what [`crate::experiment::run`] takes, so nothing downstream checks again.
+#[derive(Debug, Clone)]
+pub struct CheckedScenario {
+    /// As written, before seeds were derived.
+    raw: Scenario,
+    scenario: Scenario,
+    features: FeatureSet,
+}
+
+/// Read access to the checked settings (`checked.seed`, `checked.tests`, …).
+impl std::ops::Deref for CheckedScenario {
+    type Target = Scenario;
+    fn deref(&self) -> &Scenario {
+        &self.scenario
+    }
+}
+
+/// Equal settings (the feature set is built from them).
+impl PartialEq for CheckedScenario {
+    fn eq(&self, other: &Self) -> bool {
+        self.raw == other.raw && self.scenario == other.scenario
+    }
+}
+
+impl CheckedScenario {
+    /// The scenario's settings (random-path seeds resolved).
+    pub fn get(&self) -> &Scenario {
+        &self.scenario
+    }
+
+    /// The scenario (variant) name.
+    pub fn name(&self) -> &str {
+        &self.scenario.name
+    }
+
+    /// The checked feature set.
+    pub fn feature_set(&self) -> &FeatureSet {
+        &self.features
+    }
+
+    /// The same scenario with another master seed (checked again: seeds derive from it).
+    pub fn with_seed(&self, seed: u64) -> Result<Self, ScenarioError> {
+        Scenario {
+            seed,
+            ..self.raw.clone()
+        }
+        .check()
     }
 }
 
@@ -288,15 +373,18 @@ pub struct ScenarioSet {
     /// Where it came from (a path, or `built-in`).
     pub source: String,
     /// The base scenario.
-    pub base: Scenario,
+    pub base: CheckedScenario,
     /// The variants, in file order (listed first, then the grid); a file without a sweep section
     /// has one variant, the base itself.
-    pub variants: Vec<Scenario>,
+    pub variants: Vec<CheckedScenario>,
 }
 
 impl ScenarioSet {
     /// The built-in default: the paper's dense Bayesian setup, run once.
-    pub fn builtin_default() -> Self {
+    ///
+    /// # Errors
+    /// None expected: the default settings pass their check (a unit test guards it).
+    pub fn builtin_default() -> Result<Self, ScenarioError> {
         let base = Scenario {
             name: "default".into(),
             description: "The paper's dense Bayesian setup (Figure 2a): 1 mm mesh, 6 size \
@@ -304,12 +392,13 @@ impl ScenarioSet {
                 .into(),
             paper_error: Some(2.3585),
             ..Scenario::default()
-        };
-        Self {
+        }
+        .check()?;
+        Ok(Self {
             source: "built-in".into(),
             variants: vec![base.clone()],
             base,
-        }
+        })
     }
 
     /// Reads and checks a scenario file.
@@ -355,7 +444,7 @@ impl ScenarioSet {
                 .map(|stem| stem.to_string_lossy().into_owned())
                 .unwrap_or_default();
         }
-        base.check()?;
+        let base = base.check()?;
         if let Some((path, _)) = sweep.grid.iter().find(|(_, values)| values.is_empty()) {
             return Err(ScenarioError::Variant {
                 path: source.to_string(),
@@ -387,9 +476,8 @@ impl ScenarioSet {
                     let mut scenario: Scenario = value
                         .try_into()
                         .map_err(|e: toml::de::Error| variant_error(e.to_string()))?;
-                    scenario.name = format!("{}-{}", base.name, spec.name);
-                    scenario.check()?;
-                    Ok(scenario)
+                    scenario.name = format!("{}-{}", base.name(), spec.name);
+                    scenario.check()
                 })
                 .collect::<Result<Vec<_>, _>>()?
         };

@@ -454,7 +454,8 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
 
 #[test]
 fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
-    use evitrack::experiment::{part_seed, Part, Workbench};
+    use evitrack::experiment::Workbench;
+    use evitrack::seed::{for_part, ScenarioPart};
     let dir = tempfile::tempdir().unwrap();
     let scenario_path = dir.path().join("s.toml");
     std::fs::write(
@@ -489,7 +490,7 @@ fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
         .dataset(
             &scenario.sim,
             &scenario.tests[0],
-            part_seed(9, Part::Test(0)),
+            for_part(9, ScenarioPart::Test(0)),
             &mut |_, _| {},
         )
         .unwrap();

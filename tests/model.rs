@@ -1,14 +1,29 @@
 //! Evidential model: training on a mesh, refinings, removed states, tuning, persistence.
 
+use evitrack::evidence::ConflictLevel;
 use evitrack::evidence::Subset;
 use evitrack::hmm::{AssignmentRule, GaussianHmm, HmmSettings};
 use evitrack::model::{
-    EvidentialModel, FeatureModel, ModelError, ModelSettings, StateCountTuner, StateCounts,
-    TunerError, Tuning, FORMAT_VERSION,
+    EvidentialModel, FeatureFrames, FeatureModel, ModelError, ModelParts, ModelSettings,
+    Provenance, StateCountTuner, StateCounts, TunerError, Tuning, FORMAT_VERSION,
 };
+use evitrack::track::TrackSettings;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+
+/// A complete model of trained frames, with default tracker settings and no validation.
+fn complete(frames: FeatureFrames) -> EvidentialModel {
+    EvidentialModel::new(ModelParts {
+        frames,
+        feature_config: None,
+        track: TrackSettings::default(),
+        threshold_learned: false,
+        validation_errors: None,
+        provenance: Provenance::new(Some("test".into()), 1),
+    })
+    .unwrap()
+}
 
 /// 20 × 20 mesh over the workspace, visited in serpentine order.
 fn mesh() -> Vec<[f64; 2]> {
@@ -64,7 +79,7 @@ fn smooth_field_on_mesh_gives_covering_disjoint_refinings() {
     let poses = mesh();
     let (names, rows) = smooth_features(&poses, 1);
     let settings = ModelSettings::default();
-    let model = EvidentialModel::train(&poses, &names, &rows, &settings).unwrap();
+    let model = FeatureFrames::train(&poses, &names, &rows, &settings).unwrap();
     assert_eq!(model.n_features(), 4);
     assert_eq!(model.sample_poses(), &poses[..]);
     for (i, f) in model.features().iter().enumerate() {
@@ -112,7 +127,7 @@ fn smooth_field_on_mesh_gives_covering_disjoint_refinings() {
         assert!(w[0].1 < w[1].0, "x bands overlap: {bands:?}");
     }
     // Same data and seed → identical model.
-    let again = EvidentialModel::train(&poses, &names, &rows, &settings).unwrap();
+    let again = FeatureFrames::train(&poses, &names, &rows, &settings).unwrap();
     assert_eq!(model, again);
 }
 
@@ -120,7 +135,7 @@ fn smooth_field_on_mesh_gives_covering_disjoint_refinings() {
 fn per_frame_likelihoods_follow_the_feature_vector() {
     let poses = mesh();
     let (names, rows) = smooth_features(&poses, 2);
-    let model = EvidentialModel::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
+    let model = FeatureFrames::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
     let out = model
         .likelihoods(&[Some(0.0), None, Some(f64::NAN), Some(1e9)])
         .unwrap();
@@ -156,7 +171,7 @@ fn missing_values_take_the_state_of_the_nearest_pose() {
         rows[s][0] = None;
     }
     rows[100][0] = Some(f64::INFINITY);
-    let model = EvidentialModel::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
+    let model = FeatureFrames::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
     let f = &model.features()[0];
     let mut expected: Vec<usize> = missing.to_vec();
     expected.push(100);
@@ -191,7 +206,7 @@ fn feature_without_values_is_an_error() {
     for r in &mut rows {
         r[2] = None;
     }
-    match EvidentialModel::train(&poses, &names, &rows, &ModelSettings::default()) {
+    match FeatureFrames::train(&poses, &names, &rows, &ModelSettings::default()) {
         Err(ModelError::NoValues { feature }) => assert_eq!(feature, "f2"),
         other => panic!("expected NoValues, got {other:?}"),
     }
@@ -203,7 +218,7 @@ fn malformed_training_input_is_an_error() {
     let (names, rows) = smooth_features(&poses, 5);
     let s = ModelSettings::default();
     assert!(matches!(
-        EvidentialModel::train(&poses[..399], &names, &rows, &s),
+        FeatureFrames::train(&poses[..399], &names, &rows, &s),
         Err(ModelError::RowCount {
             rows: 400,
             poses: 399
@@ -212,7 +227,7 @@ fn malformed_training_input_is_an_error() {
     let mut short = rows.clone();
     short[7].pop();
     assert!(matches!(
-        EvidentialModel::train(&poses, &names, &short, &s),
+        FeatureFrames::train(&poses, &names, &short, &s),
         Err(ModelError::RowLength {
             row: 7,
             expected: 4,
@@ -222,21 +237,21 @@ fn malformed_training_input_is_an_error() {
     let mut dup = names.clone();
     dup[3] = "f0".into();
     assert!(matches!(
-        EvidentialModel::train(&poses, &dup, &rows, &s),
+        FeatureFrames::train(&poses, &dup, &rows, &s),
         Err(ModelError::DuplicateFeature(n)) if n == "f0"
     ));
     let mut bad_poses = poses.clone();
     bad_poses[12][1] = f64::NAN;
     assert!(matches!(
-        EvidentialModel::train(&bad_poses, &names, &rows, &s),
+        FeatureFrames::train(&bad_poses, &names, &rows, &s),
         Err(ModelError::NonFinitePose { index: 12, .. })
     ));
     assert!(matches!(
-        EvidentialModel::train(&[], &names, &[], &s),
+        FeatureFrames::train(&[], &names, &[], &s),
         Err(ModelError::NoSamples)
     ));
     assert!(matches!(
-        EvidentialModel::train(&poses, &[], &vec![vec![]; 400], &s),
+        FeatureFrames::train(&poses, &[], &vec![vec![]; 400], &s),
         Err(ModelError::NoFeatures)
     ));
     let wrong_counts = ModelSettings {
@@ -244,7 +259,7 @@ fn malformed_training_input_is_an_error() {
         ..Default::default()
     };
     assert!(matches!(
-        EvidentialModel::train(&poses, &names, &rows, &wrong_counts),
+        FeatureFrames::train(&poses, &names, &rows, &wrong_counts),
         Err(ModelError::Settings {
             field: "states",
             ..
@@ -307,16 +322,16 @@ fn unused_state_is_removed_and_recorded() {
     assert_eq!(summary.requested_states, 3);
     assert!(summary.to_string().contains("removed states [2]"));
     // Removed states survive a save/load round trip.
-    let model = EvidentialModel::from_features(poses, vec![f.clone()]).unwrap();
+    let model = complete(FeatureFrames::from_features(poses, vec![f.clone()]).unwrap());
     let back = EvidentialModel::from_json(&model.to_json().unwrap()).unwrap();
-    assert_eq!(back.features()[0].removed_states(), &[2]);
-    assert_eq!(back.features()[0].refining(), f.refining());
+    assert_eq!(back.frames().features()[0].removed_states(), &[2]);
+    assert_eq!(back.frames().features()[0].refining(), f.refining());
 }
 
 #[test]
 fn removed_states_that_disagree_with_assignments_are_rejected_on_load() {
     let (poses, f) = model_with_removed_state();
-    let model = EvidentialModel::from_features(poses, vec![f]).unwrap();
+    let model = complete(FeatureFrames::from_features(poses, vec![f]).unwrap());
     let text = model.to_json().unwrap();
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     let mut v2 = v.clone();
@@ -334,24 +349,42 @@ fn save_load_round_trip() {
     let poses = mesh();
     let (names, mut rows) = smooth_features(&poses, 6);
     rows[5][1] = None;
-    let mut model =
-        EvidentialModel::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
-    model.set_conflict_threshold(Some(0.35)).unwrap();
-    model
-        .set_validation_errors(Some(vec![0.1, 0.2, 0.3, 0.4]))
-        .unwrap();
+    let frames = FeatureFrames::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
+    let model = EvidentialModel::new(ModelParts {
+        frames,
+        feature_config: None,
+        track: TrackSettings {
+            conflict_threshold: ConflictLevel::Finite(0.35),
+            ..TrackSettings::default()
+        },
+        threshold_learned: true,
+        validation_errors: Some(vec![0.1, 0.2, 0.3, 0.4]),
+        provenance: Provenance::new(Some("round-trip".into()), 9),
+    })
+    .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("model.json");
     model.save(&path).unwrap();
     let back = EvidentialModel::load(&path).unwrap();
-    assert_eq!(back.conflict_threshold(), Some(0.35));
+    assert_eq!(
+        back.track_settings().conflict_threshold,
+        ConflictLevel::Finite(0.35)
+    );
+    assert!(back.threshold_learned());
     assert_eq!(back.validation_errors(), Some(&[0.1, 0.2, 0.3, 0.4][..]));
+    assert_eq!(back.provenance(), model.provenance());
+    assert_eq!(back.provenance().seed, 9);
     // serde_json without its `float_roundtrip` feature may parse a number 1 ulp away from the
     // value written, so floats are compared to 1e-15 relative; everything else exactly.
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-15 * a.abs().max(b.abs());
     let close_all =
         |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| close(*x, *y));
-    for (a, b) in model.features().iter().zip(back.features()) {
+    for (a, b) in model
+        .frames()
+        .features()
+        .iter()
+        .zip(back.frames().features())
+    {
         assert_eq!(a.name(), b.name());
         assert_eq!(a.requested_states(), b.requested_states());
         assert_eq!(a.n_observations(), b.n_observations());
@@ -373,7 +406,7 @@ fn save_load_round_trip() {
     // Saving the loaded model again gives a file that loads to the same model.
     let path2 = dir.path().join("again.json");
     back.save(&path2).unwrap();
-    assert_eq!(EvidentialModel::load(&path2).unwrap().features().len(), 4);
+    assert_eq!(EvidentialModel::load(&path2).unwrap(), back);
     // The file states its format version.
     let text = std::fs::read_to_string(&path).unwrap();
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -384,9 +417,34 @@ fn save_load_round_trip() {
 fn wrong_version_or_corrupted_file_is_a_clear_error() {
     let poses = mesh();
     let (names, rows) = smooth_features(&poses, 7);
-    let model = EvidentialModel::train(&poses, &names, &rows, &ModelSettings::default()).unwrap();
+    let model =
+        complete(FeatureFrames::train(&poses, &names, &rows, &ModelSettings::default()).unwrap());
     let text = model.to_json().unwrap();
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+
+    // A version-1 file (before models were self-contained) is named as such.
+    let mut old = v.clone();
+    old["format_version"] = serde_json::json!(1);
+    let err = EvidentialModel::from_json(&old.to_string()).unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("format version 1 is not supported")
+            && err
+                .to_string()
+                .contains(&format!("version {FORMAT_VERSION}")),
+        "{err}"
+    );
+    // A file of another method names the method.
+    let mut foreign = v.clone();
+    foreign["method"] = serde_json::json!("knn");
+    let err = EvidentialModel::from_json(&foreign.to_string()).unwrap_err();
+    assert!(matches!(err, ModelError::WrongMethod { .. }), "{err}");
+    assert!(err.to_string().contains("`knn`"), "{err}");
+    // A threshold that is not a level of conflict.
+    let mut negative = v.clone();
+    negative["track"]["conflict_threshold"] = serde_json::json!(-0.5);
+    let err = EvidentialModel::from_json(&negative.to_string()).unwrap_err();
+    assert!(err.to_string().contains("conflict_threshold"), "{err}");
 
     let mut future = v.clone();
     future["format_version"] = serde_json::json!(FORMAT_VERSION + 1);
@@ -460,7 +518,7 @@ fn bic_picks_more_states_for_a_multimodal_feature() {
         },
         ..Default::default()
     };
-    let model = EvidentialModel::train(&poses, &names, &rows, &settings).unwrap();
+    let model = FeatureFrames::train(&poses, &names, &rows, &settings).unwrap();
     let multi = &model.features()[0];
     let uni = &model.features()[1];
     assert_eq!(multi.requested_states(), 4);
@@ -474,7 +532,7 @@ fn bic_picks_more_states_for_a_multimodal_feature() {
             states: StateCounts::All(n),
             ..Default::default()
         };
-        let m = EvidentialModel::train(&poses, &names, &rows, &given).unwrap();
+        let m = FeatureFrames::train(&poses, &names, &rows, &given).unwrap();
         assert!(m.features()[0].bic() >= multi.bic() - 1e-9);
         assert!(m.features()[1].bic() >= uni.bic() - 1e-9);
     }
@@ -508,12 +566,12 @@ fn validation_tuning_goes_through_the_tuner_hook() {
         ..Default::default()
     };
     assert!(matches!(
-        EvidentialModel::train(&poses, &names, &rows, &settings),
+        FeatureFrames::train(&poses, &names, &rows, &settings),
         Err(ModelError::TunerRequired)
     ));
     let mut tuner = PreferCount(3, Vec::new());
     let model =
-        EvidentialModel::train_with_tuner(&poses, &names, &rows, &settings, &mut tuner).unwrap();
+        FeatureFrames::train_with_tuner(&poses, &names, &rows, &settings, &mut tuner).unwrap();
     assert!(model.features().iter().all(|f| f.requested_states() == 3));
     assert_eq!(
         tuner.1,
@@ -539,7 +597,7 @@ fn validation_tuning_goes_through_the_tuner_hook() {
         states: StateCounts::All(3),
         ..Default::default()
     };
-    let direct = EvidentialModel::train(&poses, &names, &rows, &given).unwrap();
+    let direct = FeatureFrames::train(&poses, &names, &rows, &given).unwrap();
     assert_eq!(model, direct);
 
     struct Failing;
@@ -548,7 +606,7 @@ fn validation_tuning_goes_through_the_tuner_hook() {
             Err("tracker diverged".into())
         }
     }
-    let err = EvidentialModel::train_with_tuner(&poses, &names, &rows, &settings, &mut Failing)
+    let err = FeatureFrames::train_with_tuner(&poses, &names, &rows, &settings, &mut Failing)
         .unwrap_err();
     assert!(err.to_string().contains("tracker diverged"), "{err}");
 
@@ -558,7 +616,7 @@ fn validation_tuning_goes_through_the_tuner_hook() {
             Ok(f64::NAN)
         }
     }
-    let err = EvidentialModel::train_with_tuner(&poses, &names, &rows, &settings, &mut NotANumber)
+    let err = FeatureFrames::train_with_tuner(&poses, &names, &rows, &settings, &mut NotANumber)
         .unwrap_err();
     assert!(
         matches!(&err, ModelError::Tuner { feature, states: 2, .. } if feature == "f0"),
@@ -610,17 +668,32 @@ fn settings_from_toml() {
 }
 
 #[test]
-fn threshold_and_validation_errors_are_checked() {
+fn a_complete_model_checks_its_parts() {
     let (poses, f) = model_with_removed_state();
-    let mut model = EvidentialModel::from_features(poses, vec![f]).unwrap();
-    assert!(model.set_conflict_threshold(Some(f64::NAN)).is_err());
-    assert!(model.set_conflict_threshold(Some(-0.1)).is_err());
-    assert!(model.set_validation_errors(Some(vec![0.1, 0.2])).is_err());
-    assert!(model
-        .set_validation_errors(Some(vec![f64::INFINITY]))
-        .is_err());
-    model.set_validation_errors(Some(vec![0.5])).unwrap();
+    let frames = FeatureFrames::from_features(poses, vec![f]).unwrap();
+    let parts = |validation_errors, track| ModelParts {
+        frames: frames.clone(),
+        feature_config: None,
+        track,
+        threshold_learned: false,
+        validation_errors,
+        provenance: Provenance::new(None, 0),
+    };
+    let bad_threshold = TrackSettings {
+        conflict_threshold: ConflictLevel::Finite(-0.1),
+        ..TrackSettings::default()
+    };
+    assert!(EvidentialModel::new(parts(None, bad_threshold)).is_err());
+    let ok = TrackSettings::default();
+    assert!(EvidentialModel::new(parts(Some(vec![0.1, 0.2]), ok.clone())).is_err());
+    assert!(EvidentialModel::new(parts(Some(vec![f64::INFINITY]), ok.clone())).is_err());
+    let model = EvidentialModel::new(parts(Some(vec![0.5]), ok)).unwrap();
     assert_eq!(model.validation_errors(), Some(&[0.5][..]));
-    model.set_conflict_threshold(None).unwrap();
-    assert_eq!(model.conflict_threshold(), None);
+    // A feature configuration must name the model's features.
+    let err = EvidentialModel::new(ModelParts {
+        feature_config: Some(evitrack::features::FeatureConfig::default()),
+        ..model.parts().clone()
+    })
+    .unwrap_err();
+    assert!(err.to_string().contains("size_line0"), "{err}");
 }

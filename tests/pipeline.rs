@@ -1,7 +1,8 @@
 //! The whole pipeline on the paper's table: the CI regression guard on estimation error.
 
-use evitrack::experiment::{run_all, RunSummary, Workbench};
-use evitrack::scenario::{Scenario, ScenarioSet};
+use evitrack::experiment::{run_all, Workbench};
+use evitrack::report::RunSummary;
+use evitrack::scenario::{CheckedScenario, ScenarioSet};
 
 fn paper() -> ScenarioSet {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/paper.toml");
@@ -66,7 +67,7 @@ fn paper_table_meets_its_expectations() {
 #[test]
 fn same_scenario_and_seed_give_identical_results_whatever_the_jobs() {
     let set = paper();
-    let variants: Vec<Scenario> = set.variants[..2].to_vec();
+    let variants: Vec<CheckedScenario> = set.variants[..2].to_vec();
     let strip = |mut s: RunSummary| {
         s.timings = Default::default();
         s
@@ -81,8 +82,7 @@ fn same_scenario_and_seed_give_identical_results_whatever_the_jobs() {
         .collect();
     assert_eq!(one, two);
     // Another seed draws other noise: the numbers move.
-    let mut reseeded = variants[0].clone();
-    reseeded.seed += 1;
+    let reseeded = variants[0].with_seed(variants[0].seed + 1).unwrap();
     let other = run_all(&[reseeded], 1, &Workbench::new(), &|_, _, _, _| {})
         .pop()
         .unwrap()
@@ -94,16 +94,18 @@ fn same_scenario_and_seed_give_identical_results_whatever_the_jobs() {
 #[test]
 fn built_in_default_is_the_papers_setup_a() {
     let set = paper();
-    let mut a = set.variants[0].clone();
-    let mut default = ScenarioSet::builtin_default().base;
-    // Names, descriptions and CI expectations differ; everything that decides the numbers (and
-    // the paper's figure beside them) agrees.
-    a.name = String::new();
-    a.description = String::new();
-    a.expect = Default::default();
-    default.name = String::new();
-    default.description = String::new();
-    default.expect = Default::default();
+    let mut a = set.variants[0].get().clone();
+    let mut default = ScenarioSet::builtin_default().unwrap().base.get().clone();
+    // Names, descriptions and CI expectations differ; the validation path's seed is pinned in
+    // the file and derived from the master seed in the default (it only ranks the fallback,
+    // which setup (a) never uses). Everything else that decides the numbers (and the paper's
+    // figure beside them) agrees.
+    for s in [&mut a, &mut default] {
+        s.name = String::new();
+        s.description = String::new();
+        s.expect = Default::default();
+        s.validation = None;
+    }
     assert_eq!(a, default);
 }
 
@@ -135,7 +137,7 @@ fps = 10.0
         "a 2 mm mesh has 100 nodes"
     );
     assert!(summary.adaptive_added > 0 && summary.samples <= 160);
-    let poses = output.model.sample_poses();
+    let poses = &output.samples;
     assert_eq!(output.sample_rounds.len(), poses.len());
     assert!(output.sample_rounds[..100].iter().all(|&r| r == 0));
     assert!(output.sample_rounds[100..]

@@ -3,10 +3,10 @@
 
 use evitrack::evidence::{
     dempster_all, from_likelihoods, pignistic, pointwise_estimate, relative_plausibility,
-    Constructor, LikelihoodIssue, MassFunction, Refining,
+    ConflictLevel, Constructor, LikelihoodIssue, MassFunction, Refining,
 };
 use evitrack::track::{
-    Estimator, FeatureIssue, FeatureModel, SelectionPolicy, TrackSettings, Tracker, TrackerModel,
+    Estimator, FeatureIssue, SelectionPolicy, TrackSettings, TrackedFeature, Tracker, TrackerModel,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -94,7 +94,7 @@ fn model(feats: &[Feat], validation: &[Option<f64>]) -> TrackerModel {
         .enumerate()
         .map(|(i, f)| {
             let assignment: Vec<usize> = poses.iter().map(|&p| f.state(f.value(p))).collect();
-            FeatureModel {
+            TrackedFeature {
                 refining: Refining::from_assignment(f.states, &assignment)
                     .expect("every bin holds a node"),
                 validation_error: validation.get(i).copied().flatten(),
@@ -280,7 +280,7 @@ fn corrupted_feature_is_left_out_and_estimate_stays_close() {
             &feats,
             TrackSettings {
                 constructor,
-                conflict_threshold: threshold,
+                conflict_threshold: ConflictLevel::Finite(threshold),
                 ..TrackSettings::default()
             },
         );
@@ -354,7 +354,7 @@ fn bad_inputs_give_flags_not_panics() {
     let t = Tracker::new(
         model(&feats, &[Some(2.0), Some(0.7), None, Some(0.9)]),
         TrackSettings {
-            conflict_threshold: 0.0,
+            conflict_threshold: ConflictLevel::Finite(0.0),
             ..TrackSettings::default()
         }
         .check()
@@ -443,7 +443,7 @@ fn triangle(policy: SelectionPolicy) -> (Tracker, Vec<Option<Vec<f64>>>) {
     let assignments = [[0, 0, 1], [0, 1, 0], [1, 0, 0]];
     let features = assignments
         .iter()
-        .map(|a| FeatureModel {
+        .map(|a| TrackedFeature {
             refining: Refining::from_assignment(2, a).unwrap(),
             validation_error: None,
         })

@@ -8,9 +8,10 @@
 //! Under the conjunctive rule the output is the unnormalised function: masses and plausibilities
 //! are not divided by 1 − κ, and the mass on ∅ is reported as `conflict_mass` only.
 
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use serde::{Deserialize, Serialize};
 
 use super::combine::{conjunctive_all, dempster_all, Rule};
+use super::level::ConflictLevel;
 use super::mass::{MassFunction, MASS_TOLERANCE};
 use super::subset::Subset;
 use super::EvidenceError;
@@ -35,61 +36,6 @@ pub struct RawMassFunction {
     pub focal: Vec<Vec<usize>>,
     /// One mass per focal set.
     pub mass: Vec<f64>,
-}
-
-/// Level of conflict as exchanged: a number, or the string `"inf"` on total conflict.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ConflictLevel {
-    /// A finite level K ≥ 0.
-    Finite(f64),
-    /// Total conflict: K = +∞.
-    Infinite,
-}
-
-impl ConflictLevel {
-    /// As an `f64` (`f64::INFINITY` for [`ConflictLevel::Infinite`]).
-    pub fn value(self) -> f64 {
-        match self {
-            ConflictLevel::Finite(k) => k,
-            ConflictLevel::Infinite => f64::INFINITY,
-        }
-    }
-
-    /// `Finite(k)` for a finite `k`, otherwise `Infinite`.
-    pub fn from_value(k: f64) -> Self {
-        if k.is_finite() {
-            ConflictLevel::Finite(k)
-        } else {
-            ConflictLevel::Infinite
-        }
-    }
-}
-
-impl Serialize for ConflictLevel {
-    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        match self {
-            ConflictLevel::Finite(k) => s.serialize_f64(*k),
-            ConflictLevel::Infinite => s.serialize_str("inf"),
-        }
-    }
-}
-
-impl<'de> Deserialize<'de> for ConflictLevel {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        #[derive(Deserialize)]
-        #[serde(untagged)]
-        enum Raw {
-            Number(f64),
-            Text(String),
-        }
-        match Raw::deserialize(d)? {
-            Raw::Number(k) => Ok(ConflictLevel::Finite(k)),
-            Raw::Text(t) if t == "inf" => Ok(ConflictLevel::Infinite),
-            Raw::Text(t) => Err(serde::de::Error::custom(format!(
-                "conflict_level must be a number or \"inf\", not {t:?}"
-            ))),
-        }
-    }
 }
 
 /// Output of `evitrack combine`.

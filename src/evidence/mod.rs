@@ -9,6 +9,7 @@ mod combine;
 mod construct;
 mod decision;
 pub mod exchange;
+mod level;
 mod mass;
 mod refining;
 mod subset;
@@ -19,9 +20,8 @@ pub use combine::{
 };
 pub use construct::{from_likelihoods, Constructor, LikelihoodIssue, Measurement};
 pub use decision::{pignistic, pointwise_estimate, relative_plausibility};
-pub use exchange::{
-    combine_input, combine_json, CombineInput, CombineReport, ConflictLevel, RawMassFunction,
-};
+pub use exchange::{combine_input, combine_json, CombineInput, CombineReport, RawMassFunction};
+pub use level::ConflictLevel;
 pub use mass::{MassFunction, MASS_TOLERANCE};
 pub use refining::Refining;
 pub use subset::{Iter, Subset, INLINE_BITS, MAX_FRAME};

@@ -31,6 +31,10 @@ pub use mesh::{analyse_mesh, FeatureSmoothness, MeshAnalysis, MeshOrder};
 pub use silhouette::{extract_silhouette, Polarity, Silhouette, SilhouetteConfig, Threshold};
 pub use size::{distance_from_line, PersistenceDiagram, SizeTable, Window};
 
+/// Feature values of a dataset's frames: one row per frame, one value per feature (`None` when
+/// missing).
+pub type FeatureRows = Vec<Vec<Option<f64>>>;
+
 /// What went wrong in feature configuration or computation.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]

@@ -1,12 +1,14 @@
-//! Reporting: error statistics, plain-text tables and PNG plots.
-//!
-//! Everything here works on plain numbers (positions in mm, errors, labels), so it knows nothing of
-//! how they were produced.
+//! Reporting: error statistics, per-frame records and run summaries, the files of a run,
+//! plain-text tables and PNG plots.
 
+mod files;
 mod plot;
+mod records;
 mod table;
 
+pub use files::write_run;
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, PlotSeries};
+pub use records::{write_frames_csv, FrameRecord, RunSummary, Timings};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};
@@ -22,6 +24,14 @@ pub enum ReportError {
         path: String,
         /// What the plotting library said.
         message: String,
+    },
+    /// A file of a run could not be written.
+    #[error("writing {path}: {source}")]
+    Write {
+        /// The file.
+        path: String,
+        /// Why.
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// There is nothing to plot.
     #[error("nothing to plot in {path}: {what}")]

@@ -95,8 +95,10 @@ pub enum Motion {
     /// Seeded smooth random path: per axis a sum of sinusoids with random amplitudes, phases and
     /// frequencies scaled so the typical speed is `speed`; it stays inside 90 % of the workspace.
     RandomPath {
-        /// Seed of the path's random draws.
-        seed: u64,
+        /// Seed of the path's random draws. Left out of a scenario, it derives from the master
+        /// seed; a motion simulated without one is refused.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        seed: Option<u64>,
         /// Typical speed (mm/s).
         speed: f64,
         /// Duration (s).
@@ -268,6 +270,26 @@ impl Motion {
         }
     }
 
+    /// The motion with `seed` filled in where it is a random path without its own seed.
+    pub fn with_default_seed(&self, seed: u64) -> Motion {
+        match self {
+            Motion::RandomPath {
+                seed: None,
+                speed,
+                duration,
+                fps,
+                components,
+            } => Motion::RandomPath {
+                seed: Some(seed),
+                speed: *speed,
+                duration: *duration,
+                fps: *fps,
+                components: *components,
+            },
+            other => other.clone(),
+        }
+    }
+
     /// Validates the motion against the five-bar's workspace and returns what the robot does.
     pub fn plan(&self, fb: &FiveBar) -> Result<Plan, SimError> {
         let w = fb.workspace();
@@ -397,7 +419,13 @@ impl Motion {
                         "components = {components} must be in 1..=64"
                     )));
                 }
-                let mut rng = ChaCha8Rng::seed_from_u64(*seed);
+                let seed = seed.ok_or_else(|| {
+                    SimError::Motion(
+                        "random_path has no `seed`: give one (scenarios derive it from their master seed)"
+                            .into(),
+                    )
+                })?;
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 let mut axis_terms = |h: f64| -> Vec<(f64, f64, f64)> {
                     let raw: Vec<(f64, f64, f64)> = (0..*components)
                         .map(|_| {
@@ -534,7 +562,7 @@ mod tests {
                 fps: 25.0,
             },
             Motion::RandomPath {
-                seed: 7,
+                seed: Some(7),
                 speed: 30.0,
                 duration: 10.0,
                 fps: 40.0,
@@ -551,7 +579,7 @@ mod tests {
     #[test]
     fn random_path_is_seeded() {
         let m = |seed| Motion::RandomPath {
-            seed,
+            seed: Some(seed),
             speed: 20.0,
             duration: 2.0,
             fps: 10.0,

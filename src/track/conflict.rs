@@ -230,7 +230,7 @@ mod tests {
     use super::*;
     use crate::evidence::{conflict, from_likelihoods, level_of_conflict, Refining};
     use crate::track::tracker::tests::tiny_tracker;
-    use crate::track::{FeatureModel, TrackSettings, TrackerModel};
+    use crate::track::{TrackSettings, TrackedFeature, TrackerModel};
 
     #[test]
     fn coarse_pairwise_conflict_equals_conflict_on_poses() {
@@ -282,7 +282,7 @@ mod tests {
                         let a: Vec<usize> = (0..t_poses)
                             .map(|q| if q < n { q } else { rng.random_range(0..n) })
                             .collect();
-                        FeatureModel {
+                        TrackedFeature {
                             refining: Refining::from_assignment(n, &a).unwrap(),
                             validation_error: None,
                         }

@@ -14,7 +14,7 @@ mod settings;
 mod threshold;
 mod tracker;
 
-pub use model::{FeatureModel, RawFeatureModel, TrackerModel, MAX_FEATURES};
+pub use model::{TrackedFeature, TrackerModel, MAX_FEATURES};
 pub use settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
 pub use threshold::learn_conflict_threshold;
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};

@@ -1,8 +1,6 @@
 //! What the tracker needs to know: sample poses and, per feature, the refining of its frame onto
 //! the sample poses. Plain data, so any trainer (the HMM-based model, a test) can build it.
 
-use serde::{Deserialize, Serialize};
-
 use super::TrackError;
 use crate::evidence::Refining;
 
@@ -13,23 +11,10 @@ pub const MAX_FEATURES: usize = 16;
 /// One feature of the model: its refining Θᵢ → Q̃ and, optionally, its validation error (mm), used
 /// to pick the fallback feature.
 #[derive(Clone, Debug, PartialEq)]
-pub struct FeatureModel {
+pub struct TrackedFeature {
     /// Refining from the feature's frame onto the sample poses.
     pub refining: Refining,
     /// Mean estimation error of this feature alone on a validation motion, if known.
-    pub validation_error: Option<f64>,
-}
-
-/// A feature as stored on disk: the state of every sample pose.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RawFeatureModel {
-    /// Number of states |Θᵢ|.
-    pub states: usize,
-    /// State of every sample pose.
-    pub assignment: Vec<usize>,
-    /// Validation error, if known.
-    #[serde(default)]
     pub validation_error: Option<f64>,
 }
 
@@ -37,7 +22,7 @@ pub struct RawFeatureModel {
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackerModel {
     poses: Vec<[f64; 2]>,
-    features: Vec<FeatureModel>,
+    features: Vec<TrackedFeature>,
 }
 
 impl TrackerModel {
@@ -47,7 +32,7 @@ impl TrackerModel {
     /// [`TrackError::NoPoses`], [`TrackError::BadPose`], [`TrackError::FeatureCount`],
     /// [`TrackError::FeatureFrame`] (a refining whose fine frame is not the sample poses),
     /// [`TrackError::BadValidationError`].
-    pub fn new(poses: Vec<[f64; 2]>, features: Vec<FeatureModel>) -> Result<Self, TrackError> {
+    pub fn new(poses: Vec<[f64; 2]>, features: Vec<TrackedFeature>) -> Result<Self, TrackError> {
         if poses.is_empty() {
             return Err(TrackError::NoPoses);
         }
@@ -84,49 +69,14 @@ impl TrackerModel {
         Ok(TrackerModel { poses, features })
     }
 
-    /// Build from raw per-feature state assignments.
-    ///
-    /// # Errors
-    /// As [`TrackerModel::new`], plus [`TrackError::Evidence`] (naming the feature) for an
-    /// assignment that is not a valid refining.
-    pub fn from_raw(poses: Vec<[f64; 2]>, raw: &[RawFeatureModel]) -> Result<Self, TrackError> {
-        let mut features = Vec::with_capacity(raw.len());
-        for (i, r) in raw.iter().enumerate() {
-            let refining =
-                Refining::from_assignment(r.states, &r.assignment).map_err(|source| {
-                    TrackError::Evidence {
-                        feature: Some(i),
-                        source,
-                    }
-                })?;
-            features.push(FeatureModel {
-                refining,
-                validation_error: r.validation_error,
-            });
-        }
-        Self::new(poses, features)
-    }
-
     /// The sample poses.
     pub fn poses(&self) -> &[[f64; 2]] {
         &self.poses
     }
 
     /// The features.
-    pub fn features(&self) -> &[FeatureModel] {
+    pub fn features(&self) -> &[TrackedFeature] {
         &self.features
-    }
-
-    /// Raw form for saving (see [`TrackerModel::from_raw`]).
-    pub fn to_raw(&self) -> Vec<RawFeatureModel> {
-        self.features
-            .iter()
-            .map(|f| RawFeatureModel {
-                states: f.refining.coarse_size(),
-                assignment: f.refining.assignment().to_vec(),
-                validation_error: f.validation_error,
-            })
-            .collect()
     }
 }
 
@@ -137,7 +87,7 @@ mod tests {
     #[test]
     fn validation_names_the_fault() {
         let r = Refining::from_assignment(2, &[0, 1, 1]).unwrap();
-        let f = |e| FeatureModel {
+        let f = |e| TrackedFeature {
             refining: r.clone(),
             validation_error: e,
         };
@@ -167,19 +117,5 @@ mod tests {
             TrackerModel::new(poses.clone(), vec![f(None), f(Some(-1.0))]),
             Err(TrackError::BadValidationError { feature: 1, .. })
         ));
-        let raw = vec![RawFeatureModel {
-            states: 3,
-            assignment: vec![0, 1, 1],
-            validation_error: None,
-        }];
-        assert!(matches!(
-            TrackerModel::from_raw(poses.clone(), &raw),
-            Err(TrackError::Evidence {
-                feature: Some(0),
-                ..
-            })
-        ));
-        let m = TrackerModel::new(poses.clone(), vec![f(Some(0.5))]).unwrap();
-        assert_eq!(TrackerModel::from_raw(poses, &m.to_raw()).unwrap(), m);
     }
 }

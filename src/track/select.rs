@@ -116,7 +116,7 @@ impl Tracker {
             for j in i + 1..f {
                 let Some(b) = &usable[j] else { continue };
                 let k = self.pair_level(i, j, a, b);
-                if k.is_finite() && k <= self.settings.conflict_threshold {
+                if self.settings.conflict_threshold.admits(k) {
                     adj[i] |= 1 << j;
                     adj[j] |= 1 << i;
                 }

@@ -1,6 +1,6 @@
 //! Tracker settings: raw (serde, `Default`) → [`TrackSettings::check`] → [`CheckedTrackSettings`].
 
-use serde::{Deserialize, Deserializer, Serialize, Serializer};
+use serde::{Deserialize, Serialize};
 
 use super::TrackError;
 use crate::evidence::{ConflictLevel, Constructor};
@@ -111,8 +111,7 @@ pub struct TrackSettings {
     pub constructor: Constructor,
     /// Conflict threshold: features i, j are compatible when K_ij is finite and K_ij ≤ threshold.
     /// `"inf"` (the default) makes every pair with finite conflict compatible.
-    #[serde(serialize_with = "ser_level", deserialize_with = "de_level")]
-    pub conflict_threshold: f64,
+    pub conflict_threshold: ConflictLevel,
     /// Group selection policy.
     pub selection: SelectionPolicy,
     /// Pose estimator.
@@ -125,25 +124,12 @@ impl Default for TrackSettings {
     fn default() -> Self {
         TrackSettings {
             constructor: Constructor::Bayesian,
-            conflict_threshold: f64::INFINITY,
+            conflict_threshold: ConflictLevel::Infinite,
             selection: SelectionPolicy::LargestSubset,
             estimator: Estimator::WeightedMean,
             uncertainty_mass: 0.9,
         }
     }
-}
-
-fn ser_level<S: Serializer>(k: &f64, s: S) -> Result<S::Ok, S::Error> {
-    // JSON has no infinity: write it as "inf", like the combine exchange format.
-    if k.is_infinite() && *k > 0.0 {
-        ConflictLevel::Infinite.serialize(s)
-    } else {
-        ConflictLevel::Finite(*k).serialize(s)
-    }
-}
-
-fn de_level<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(ConflictLevel::deserialize(d)?.value())
 }
 
 /// Settings that passed [`TrackSettings::check`].
@@ -164,12 +150,12 @@ impl TrackSettings {
     /// # Errors
     /// [`TrackError::InvalidSetting`] naming the field and what is accepted.
     pub fn check(self) -> Result<CheckedTrackSettings, TrackError> {
-        if self.conflict_threshold.is_nan() || self.conflict_threshold < 0.0 {
+        if !self.conflict_threshold.is_valid() {
             return Err(TrackError::InvalidSetting {
                 field: "conflict_threshold",
                 reason: format!(
                     "{} is not a level of conflict: use a number ≥ 0 or \"inf\"",
-                    self.conflict_threshold
+                    self.conflict_threshold.value()
                 ),
             });
         }
@@ -200,7 +186,7 @@ mod tests {
         assert!(json.contains("\"conflict_threshold\":\"inf\""), "{json}");
         assert_eq!(serde_json::from_str::<TrackSettings>(&json).unwrap(), s);
         let t = TrackSettings {
-            conflict_threshold: 0.25,
+            conflict_threshold: ConflictLevel::Finite(0.25),
             selection: SelectionPolicy::LowestConflict { min_size: 3 },
             estimator: Estimator::Map,
             constructor: Constructor::Consonant,
@@ -213,7 +199,7 @@ mod tests {
         )
         .unwrap();
         assert_eq!(parsed.selection, SelectionPolicy::Splitting { min_size: 2 });
-        assert_eq!(parsed.conflict_threshold, f64::INFINITY);
+        assert_eq!(parsed.conflict_threshold, ConflictLevel::Infinite);
     }
 
     #[test]
@@ -233,11 +219,11 @@ mod tests {
             "selection = { policy = \"splitting\", min_size = 2, x = 1 }"
         )
         .is_err());
-        assert!(bad(|s| s.conflict_threshold = f64::NAN).is_err());
-        assert!(bad(|s| s.conflict_threshold = -1.0).is_err());
+        assert!(bad(|s| s.conflict_threshold = ConflictLevel::Finite(f64::NAN)).is_err());
+        assert!(bad(|s| s.conflict_threshold = ConflictLevel::Finite(-1.0)).is_err());
         assert!(bad(|s| s.selection = SelectionPolicy::Splitting { min_size: 0 }).is_err());
         assert!(bad(|s| s.uncertainty_mass = 0.0).is_err());
         assert!(bad(|s| s.uncertainty_mass = f64::NAN).is_err());
-        assert!(bad(|s| s.conflict_threshold = 0.0).is_ok());
+        assert!(bad(|s| s.conflict_threshold = ConflictLevel::Finite(0.0)).is_ok());
     }
 }

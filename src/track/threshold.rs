@@ -1,6 +1,7 @@
 //! Learning the conflict threshold on a validation motion (§4.3).
 
 use super::TrackError;
+use crate::evidence::ConflictLevel;
 
 /// The conflict threshold learned from a validation motion: the mean of the per-frame levels of
 /// conflict of the full combination, weighted by the per-frame estimation errors,
@@ -9,12 +10,15 @@ use super::TrackError;
 /// Frames whose level is infinite (or NaN) are skipped: they have no finite level to average.
 /// When the remaining frames' errors sum to 0 (every estimate exact), the plain mean of their levels
 /// is returned; when no frame has a finite level (or there are no frames), the result is
-/// `f64::INFINITY`, i.e. every pair with finite conflict stays compatible.
+/// [`ConflictLevel::Infinite`], i.e. every pair with finite conflict stays compatible.
 ///
 /// # Errors
 /// [`TrackError::LearningLengths`] when the slices differ in length, [`TrackError::LearningError`]
 /// for an error that is NaN, infinite or negative.
-pub fn learn_conflict_threshold(levels: &[f64], errors: &[f64]) -> Result<f64, TrackError> {
+pub fn learn_conflict_threshold(
+    levels: &[f64],
+    errors: &[f64],
+) -> Result<ConflictLevel, TrackError> {
     if levels.len() != errors.len() {
         return Err(TrackError::LearningLengths {
             levels: levels.len(),
@@ -39,11 +43,11 @@ pub fn learn_conflict_threshold(levels: &[f64], errors: &[f64]) -> Result<f64, T
         count += 1;
     }
     Ok(if count == 0 {
-        f64::INFINITY
+        ConflictLevel::Infinite
     } else if den > 0.0 {
-        num / den
+        ConflictLevel::Finite(num / den)
     } else {
-        sum / count as f64
+        ConflictLevel::Finite(sum / count as f64)
     })
 }
 
@@ -55,17 +59,21 @@ mod tests {
     fn weighted_mean_by_hand() {
         // (0.1·1 + 0.4·3) / 4 = 0.325; the infinite frame is skipped.
         let k = learn_conflict_threshold(&[0.1, 0.4, f64::INFINITY], &[1.0, 3.0, 100.0]).unwrap();
-        assert!((k - 0.325).abs() < 1e-15);
+        assert!((k.value() - 0.325).abs() < 1e-15);
     }
 
     #[test]
     fn documented_fallbacks() {
-        assert!((learn_conflict_threshold(&[0.2, 0.4], &[0.0, 0.0]).unwrap() - 0.3).abs() < 1e-15);
+        let k = learn_conflict_threshold(&[0.2, 0.4], &[0.0, 0.0]).unwrap();
+        assert!((k.value() - 0.3).abs() < 1e-15);
         assert_eq!(
             learn_conflict_threshold(&[f64::INFINITY], &[1.0]).unwrap(),
-            f64::INFINITY
+            ConflictLevel::Infinite
         );
-        assert_eq!(learn_conflict_threshold(&[], &[]).unwrap(), f64::INFINITY);
+        assert_eq!(
+            learn_conflict_threshold(&[], &[]).unwrap(),
+            ConflictLevel::Infinite
+        );
         assert!(learn_conflict_threshold(&[0.1], &[]).is_err());
         assert!(learn_conflict_threshold(&[0.1], &[f64::NAN]).is_err());
         assert!(learn_conflict_threshold(&[0.1], &[-1.0]).is_err());

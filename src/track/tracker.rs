@@ -389,7 +389,7 @@ pub(super) fn members(mask: u32) -> impl Iterator<Item = usize> {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
-    use crate::track::{FeatureModel, SelectionPolicy};
+    use crate::track::{SelectionPolicy, TrackedFeature};
 
     pub(in crate::track) fn tiny_tracker(constructor: crate::evidence::Constructor) -> Tracker {
         // 6 poses on a line; three features with different partitions.
@@ -401,7 +401,7 @@ pub(super) mod tests {
         ];
         let features = feats
             .iter()
-            .map(|a| FeatureModel {
+            .map(|a| TrackedFeature {
                 refining: Refining::from_assignment(a.iter().max().unwrap() + 1, a).unwrap(),
                 validation_error: None,
             })
@@ -446,7 +446,7 @@ pub(super) mod tests {
                 _ => SelectionPolicy::Splitting { min_size: 2 },
             };
             let base = tiny_tracker(constructor);
-            let settings = TrackSettings { constructor, conflict_threshold: threshold, selection, ..TrackSettings::default() };
+            let settings = TrackSettings { constructor, conflict_threshold: crate::evidence::ConflictLevel::from_value(threshold), selection, ..TrackSettings::default() };
             let t = Tracker::new(base.model().clone(), settings.check().unwrap()).unwrap();
             let est = t.track(&lik).unwrap();
             let usable = lik.iter().enumerate().filter(|(i, _)| !est.flags.unusable.iter().any(|(f, _)| f == i)).count();

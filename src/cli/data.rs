@@ -1,0 +1,300 @@
+//! Commands on datasets and belief functions: `simulate`, `render`, `features`, `combine`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+
+use super::{
+    extract_with_progress, feature_config, fresh_dir, output_sink, progress_bar, read_dataset,
+};
+use evitrack::dataset::Dataset;
+use evitrack::evidence;
+use evitrack::experiment::{sample_trajectory, Workbench};
+use evitrack::report::Timings;
+use evitrack::scenario::{CheckedScenario, SampleSettings, ScenarioSet};
+use evitrack::seed::{self, ScenarioPart};
+use evitrack::sim::{self, Motion, NoiseSettings, SimSettings};
+
+/// Arguments of `combine`.
+#[derive(Debug, Args)]
+pub struct CombineArgs {
+    /// Input JSON file (`-` reads standard input).
+    file: PathBuf,
+}
+
+#[derive(Debug, Args)]
+struct SimArgs {
+    /// Seed of the image noise (and of random paths).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Render without noise.
+    #[arg(long)]
+    noise_free: bool,
+}
+
+impl SimArgs {
+    fn settings(&self) -> SimSettings {
+        let mut settings = SimSettings::default();
+        if self.noise_free {
+            settings.noise = NoiseSettings::none();
+        }
+        settings
+    }
+}
+
+#[derive(Debug, Args)]
+pub struct SimulateArgs {
+    /// Output folder (created; must be empty or absent).
+    #[arg(long)]
+    out: PathBuf,
+    /// The motion as an inline TOML table, e.g.
+    /// 'kind = "lissajous", freq_x = 0.3, freq_y = 0.2, duration = 10, fps = 10'.
+    /// Default: the 1 mm mesh of the sample trajectory (400 nodes).
+    #[arg(long, conflicts_with = "scenario")]
+    motion: Option<String>,
+    /// Simulate a motion of this scenario file instead, with its rig and the seed its run
+    /// uses, so the dataset is the one `run` trains or tests on (`--seed`/`--noise-free` are
+    /// ignored).
+    #[arg(long)]
+    scenario: Option<PathBuf>,
+    /// Which of the scenario's motions: `sample` (the frames `run` trains on, after
+    /// `keep_every` and the adaptive samples), `validation` or `test` (`test1`, … for later test
+    /// motions).
+    #[arg(long, default_value = "sample", requires = "scenario")]
+    part: String,
+    /// The sweep variant of the scenario file, by its full name (`paper-c`) or the part after
+    /// the scenario's name (`c`). Default: the base scenario.
+    #[arg(long, requires = "scenario")]
+    variant: Option<String>,
+    #[command(flatten)]
+    sim: SimArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// End-effector x (mm, robot frame; the workspace is x ∈ [−9.5, 9.5]).
+    #[arg(long, allow_negative_numbers = true)]
+    x: f64,
+    /// End-effector y (mm, robot frame; the workspace is y ∈ [38, 57]).
+    #[arg(long, allow_negative_numbers = true)]
+    y: f64,
+    /// Output PNG file.
+    #[arg(long)]
+    out: PathBuf,
+    #[command(flatten)]
+    sim: SimArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct FeaturesArgs {
+    /// Dataset folder (frames + poses.csv + manifest.json).
+    dataset: PathBuf,
+    /// Feature configuration (TOML, the `[features]` table of a scenario without its header).
+    /// Default: the paper's 6 size functions.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Add the barycentre features (x, y) to the default configuration.
+    #[arg(long, conflicts_with = "config")]
+    barycentre: bool,
+    /// Output CSV file (default: standard output).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+fn parse_motion(text: &str) -> Result<Motion> {
+    let table = format!("motion = {{ {text} }}");
+    #[derive(serde::Deserialize)]
+    struct Wrapper {
+        motion: Motion,
+    }
+    let wrapper: Wrapper = toml::from_str(&table)
+        .with_context(|| format!("--motion '{text}' is not a valid motion table"))?;
+    Ok(wrapper.motion)
+}
+
+/// The base scenario or the named sweep variant of a scenario file.
+fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenario> {
+    let set = ScenarioSet::load(path)?;
+    let Some(name) = variant else {
+        return Ok(set.base);
+    };
+    let full = format!("{}-{name}", set.base.name());
+    let names: Vec<&str> = set.variants.iter().map(|v| v.name()).collect();
+    set.variants
+        .iter()
+        .find(|v| v.name() == name || v.name() == full)
+        .cloned()
+        .with_context(|| {
+            format!(
+                "{} has no variant `{name}`; its variants are {}",
+                path.display(),
+                names.join(", ")
+            )
+        })
+}
+
+/// Exactly the dataset a run of the scenario uses for `part`.
+fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
+    let s = scenario.get();
+    let bar = progress_bar("simulate");
+    let mut progress = |_: &str, done: usize, total: usize| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    };
+    let (motion, part) = match part {
+        "sample" => {
+            let bench = Workbench::new();
+            let sample =
+                sample_trajectory(scenario, &bench, &mut progress, &mut Timings::default())?;
+            bar.finish_and_clear();
+            return Ok(sample.dataset);
+        }
+        "validation" => (
+            s.validation
+                .clone()
+                .with_context(|| format!("scenario `{}` has no validation motion", s.name))?,
+            ScenarioPart::Validation,
+        ),
+        test if test.starts_with("test") => {
+            let index: usize = match &test[4..] {
+                "" => 0,
+                digits => digits
+                    .parse()
+                    .with_context(|| format!("--part `{test}`: expected test, test1, test2, …"))?,
+            };
+            let motion = s.tests.get(index).cloned().with_context(|| {
+                format!(
+                    "scenario `{}` has {} test motion(s): use --part test … test{}",
+                    s.name,
+                    s.tests.len(),
+                    s.tests.len().saturating_sub(1)
+                )
+            })?;
+            (motion, ScenarioPart::Test(index))
+        }
+        other => bail!("--part `{other}` must be sample, validation or test[N]"),
+    };
+    let seed = seed::for_part(s.seed, part);
+    let dataset = sim::simulate(&s.sim, &motion, seed, &mut |d, t| progress("", d, t))?;
+    bar.finish_and_clear();
+    Ok(dataset)
+}
+
+pub fn simulate(args: &SimulateArgs) -> Result<ExitCode> {
+    fresh_dir(&args.out)?;
+    let dataset = match (&args.scenario, &args.motion) {
+        (Some(path), _) => {
+            let scenario = scenario_variant(path, args.variant.as_deref())?;
+            scenario_part(&scenario, &args.part)?
+        }
+        (None, motion_text) => {
+            let motion = match motion_text {
+                Some(text) => parse_motion(text)?,
+                None => SampleSettings::default().motion,
+            };
+            // A random path without its own seed takes --seed.
+            let motion = motion.with_default_seed(args.sim.seed);
+            let bar = progress_bar("simulate");
+            let dataset = sim::simulate(
+                &args.sim.settings(),
+                &motion,
+                args.sim.seed,
+                &mut |done, total| {
+                    bar.set_length(total as u64);
+                    bar.set_position(done as u64);
+                },
+            )?;
+            bar.finish_and_clear();
+            dataset
+        }
+    };
+    dataset
+        .write(&args.out)
+        .with_context(|| format!("writing the dataset to {}", args.out.display()))?;
+    eprintln!(
+        "wrote {} frames of `{}` to {}",
+        dataset.len(),
+        dataset.manifest.scenario,
+        args.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn render(args: &RenderArgs) -> Result<ExitCode> {
+    let image = sim::render_pose(&args.sim.settings(), args.x, args.y, args.sim.seed)?;
+    image
+        .save(&args.out)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    eprintln!(
+        "rendered ({}, {}) mm to {} ({}×{} px)",
+        args.x,
+        args.y,
+        args.out.display(),
+        image.width(),
+        image.height()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn combine(args: &CombineArgs) -> Result<ExitCode> {
+    let file = args.file.as_path();
+    let (text, name) = if file == Path::new("-") {
+        let text = std::io::read_to_string(std::io::stdin()).context("reading standard input")?;
+        (text, "standard input".to_string())
+    } else {
+        let text =
+            std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+        (text, file.display().to_string())
+    };
+    let report = evidence::exchange::combine_json(&text)
+        .with_context(|| format!("{name} is not a valid combine input"))?;
+    if report.is_total_conflict() {
+        eprintln!(
+            "warning: the mass functions are in total conflict (κ = 1): no combination exists"
+        );
+    }
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
+    let dataset = read_dataset(&args.dataset)?;
+    let set = feature_config(args.config.as_deref(), args.barycentre)?.check()?;
+    let rows = extract_with_progress(&set, &dataset);
+    let sink = output_sink(args.out.as_deref())?;
+    let mut csv = csv::Writer::from_writer(sink);
+    let with_truth = dataset.frames.iter().all(|f| f.truth.is_some());
+    let mut header = vec!["file".to_string(), "t".to_string()];
+    header.extend(set.names());
+    if with_truth {
+        header.extend(["x", "y", "theta1", "theta2"].map(String::from));
+    }
+    csv.write_record(&header)?;
+    for (frame, values) in dataset.frames.iter().zip(&rows) {
+        let mut record = vec![frame.file.clone(), frame.t.to_string()];
+        record.extend(
+            values
+                .iter()
+                .map(|v| v.map(|v| v.to_string()).unwrap_or_default()),
+        );
+        if let (true, Some(truth)) = (with_truth, frame.truth) {
+            record.extend([truth.x, truth.y, truth.theta1, truth.theta2].map(|v| v.to_string()));
+        }
+        csv.write_record(&record)?;
+    }
+    csv.flush()?;
+    let missing = rows.iter().flatten().filter(|v| v.is_none()).count();
+    eprintln!(
+        "{} frames × {} features{}",
+        rows.len(),
+        set.len(),
+        if missing > 0 {
+            format!(", {missing} missing values (empty cells)")
+        } else {
+            String::new()
+        }
+    );
+    Ok(ExitCode::SUCCESS)
+}

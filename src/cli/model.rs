@@ -1,0 +1,355 @@
+//! Commands on models: `train` and `track`, through the estimator seam.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+
+use super::{extract_with_progress, feature_config, output_sink, progress_bar, read_dataset};
+use evitrack::estimator::{
+    missing_penalty, DatasetFeatures, Evidential, EvidentialSettings, PoseEstimator, TrainingSet,
+};
+use evitrack::evidence::{ConflictLevel, Constructor};
+use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
+use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
+use evitrack::track::{Estimator, SelectionPolicy, TrackSettings};
+
+/// Tracker settings given on the command line; what is left out keeps its value.
+#[derive(Debug, Args)]
+struct TrackOptions {
+    /// Belief-function constructor [default at training: bayesian].
+    #[arg(long, value_enum)]
+    constructor: Option<ConstructorArg>,
+    /// Conflict threshold: a number ≥ 0 or `inf` (combine everything) [default at training:
+    /// inf, or learned with --validation; at tracking: the model's].
+    #[arg(long)]
+    threshold: Option<String>,
+    /// Which compatible group to combine: `largest`, `lowest:N` (lowest conflict among groups of
+    /// at least N features) or `split:N` (every group of at least N; the first is reported)
+    /// [default at training: largest].
+    #[arg(long)]
+    selection: Option<String>,
+    /// Pointwise estimate from the combined belief function [default at training:
+    /// weighted-mean].
+    #[arg(long, value_enum)]
+    estimator: Option<EstimatorArg>,
+}
+
+impl TrackOptions {
+    /// `base` with the options given replacing its values.
+    fn apply(&self, base: &TrackSettings) -> Result<TrackSettings> {
+        let mut settings = base.clone();
+        if let Some(c) = self.constructor {
+            settings.constructor = match c {
+                ConstructorArg::Bayesian => Constructor::Bayesian,
+                ConstructorArg::Consonant => Constructor::Consonant,
+            };
+        }
+        if let Some(text) = &self.selection {
+            settings.selection = parse_selection(text)?;
+        }
+        if let Some(e) = self.estimator {
+            settings.estimator = match e {
+                EstimatorArg::WeightedMean => Estimator::WeightedMean,
+                EstimatorArg::Map => Estimator::Map,
+                EstimatorArg::Pignistic => Estimator::Pignistic,
+            };
+        }
+        if let Some(text) = &self.threshold {
+            settings.conflict_threshold = match text.as_str() {
+                "inf" => ConflictLevel::Infinite,
+                text => text
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|t| t.is_finite() && *t >= 0.0)
+                    .map(ConflictLevel::Finite)
+                    .with_context(|| {
+                        format!("--threshold `{text}` must be a number ≥ 0 or `inf`")
+                    })?,
+            };
+        }
+        Ok(settings)
+    }
+}
+
+/// Arguments of `train`.
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Dataset folder of the sample trajectory (it must have ground-truth poses).
+    dataset: PathBuf,
+    /// Output model file (JSON): self-contained, `track --model` needs nothing else.
+    #[arg(long)]
+    out: PathBuf,
+    /// A dataset of a validation motion (with ground truth): measures each feature's own error
+    /// (the fallback's ranking) and learns the conflict threshold on it (§4.3).
+    #[arg(long)]
+    validation: Option<PathBuf>,
+    /// With --validation, keep the --threshold given instead of learning it.
+    #[arg(long, requires = "validation")]
+    keep_threshold: bool,
+    /// HMM state counts: one for every feature (`3`) or one per feature (`2,2,2,3,3,2`).
+    /// Default: the paper's, 2,2,2,3,3,2 for the size functions then 3,2 for the barycentre.
+    #[arg(long)]
+    states: Option<String>,
+    /// Tune each feature's state count by BIC between these bounds (`2..5`) instead.
+    #[arg(long)]
+    tune_bic: Option<String>,
+    /// Feature configuration (TOML); default: the paper's 6 size functions.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Add the barycentre features to the default configuration.
+    #[arg(long, conflicts_with = "config")]
+    barycentre: bool,
+    /// Seed of the EM initialisations.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    #[command(flatten)]
+    track: TrackOptions,
+}
+
+/// Arguments of `track`.
+#[derive(Debug, Args)]
+pub struct TrackArgs {
+    /// Dataset folder to track.
+    dataset: PathBuf,
+    /// Model file written by `train`, `run` or `sweep` (`<out>/<scenario>/model.json`).
+    #[arg(long)]
+    model: PathBuf,
+    /// Output CSV of per-frame estimates (default: standard output).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Options given here replace the model's tracker settings.
+    #[command(flatten)]
+    track: TrackOptions,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum EstimatorArg {
+    /// Σ Pl(q) q over the sample poses, with relative plausibilities.
+    WeightedMean,
+    /// The sample pose of highest plausibility.
+    Map,
+    /// Σ BetP(q) q with the pignistic probability.
+    Pignistic,
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum ConstructorArg {
+    Bayesian,
+    Consonant,
+}
+
+fn parse_selection(text: &str) -> Result<SelectionPolicy> {
+    let min_size = |n: &str| {
+        n.parse::<usize>()
+            .ok()
+            .filter(|&n| n >= 1)
+            .with_context(|| format!("--selection `{text}`: N must be a whole number ≥ 1"))
+    };
+    Ok(match text.split_once(':') {
+        None if text == "largest" => SelectionPolicy::LargestSubset,
+        Some(("lowest", n)) => SelectionPolicy::LowestConflict {
+            min_size: min_size(n)?,
+        },
+        Some(("split", n)) => SelectionPolicy::Splitting {
+            min_size: min_size(n)?,
+        },
+        _ => bail!("--selection `{text}` must be `largest`, `lowest:N` or `split:N`"),
+    })
+}
+
+fn parse_counts(text: &str, what: &str) -> Result<StateCounts> {
+    let counts: Vec<usize> = text
+        .split(',')
+        .map(|c| c.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .with_context(|| {
+            format!("{what} `{text}` must be a count (`3`) or a list of counts (`2,2,2,3,3,2`)")
+        })?;
+    Ok(match counts.as_slice() {
+        [one] => StateCounts::All(*one),
+        _ => StateCounts::PerFeature(counts),
+    })
+}
+
+/// The paper's state count for one of its features (§6.2).
+fn paper_states(feature: &str) -> Result<usize> {
+    Ok(match feature {
+        "size_line3" | "size_line4" | "barycentre_x" => 3,
+        "size_line0" | "size_line1" | "size_line2" | "size_line5" | "barycentre_y" => 2,
+        other => bail!("the paper gives no state count for feature `{other}`: pass --states"),
+    })
+}
+
+pub fn train(args: &TrainArgs) -> Result<ExitCode> {
+    let config = feature_config(args.config.as_deref(), args.barycentre)?;
+    let set = config.check()?;
+    let names = set.names();
+    let dataset = read_dataset(&args.dataset)?;
+    let what = args.dataset.display().to_string();
+    let sample = DatasetFeatures {
+        poses: dataset.truth_positions().with_context(|| {
+            format!("{what} has frames without ground-truth poses: training needs the pose of every sample")
+        })?,
+        rows: extract_with_progress(&set, &dataset),
+    };
+    let validation = match &args.validation {
+        Some(path) => {
+            let data = read_dataset(path)?;
+            Some(DatasetFeatures {
+                poses: data.truth_positions().with_context(|| {
+                    format!(
+                        "{} has frames without ground-truth poses: validation needs them",
+                        path.display()
+                    )
+                })?,
+                rows: extract_with_progress(&set, &data),
+            })
+        }
+        None => None,
+    };
+    let states = match &args.states {
+        Some(text) => parse_counts(text, "--states")?,
+        None => StateCounts::PerFeature(
+            names
+                .iter()
+                .map(|name| paper_states(name))
+                .collect::<Result<_>>()?,
+        ),
+    };
+    let mut model = ModelSettings {
+        states,
+        seed: args.seed,
+        ..ModelSettings::default()
+    };
+    if let Some(bounds) = &args.tune_bic {
+        let (low, high) = bounds
+            .split_once("..")
+            .with_context(|| format!("--tune-bic `{bounds}` must look like `2..5`"))?;
+        model.tuning = Tuning::Bic {
+            min_states: parse_counts(low, "--tune-bic lower bound")?,
+            max_states: parse_counts(high, "--tune-bic upper bound")?,
+        };
+    }
+    let settings = EvidentialSettings {
+        model,
+        track: args.track.apply(&TrackSettings::default())?,
+        learn_threshold: validation.is_some() && !args.keep_threshold,
+    };
+    let training = TrainingSet {
+        feature_names: &names,
+        feature_config: Some(&config),
+        sample: sample.labelled(),
+        validation: validation.as_ref().map(DatasetFeatures::labelled),
+        missing_penalty: missing_penalty(&dataset),
+        provenance: Provenance::new(None, args.seed),
+    };
+    let estimator = Evidential::fit(&settings, &training)?;
+    std::fs::write(&args.out, estimator.to_json()?)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let mut table = Table::new([
+        "feature",
+        "states",
+        "asked",
+        "log-likelihood",
+        "BIC",
+        "block sizes",
+        "validation error",
+        "notes",
+    ]);
+    let model = estimator.model();
+    let validation_errors = model.validation_errors();
+    for (i, summary) in model.frames().summary().into_iter().enumerate() {
+        let mut notes = Vec::new();
+        if !summary.removed_states.is_empty() {
+            notes.push(format!("removed states {:?}", summary.removed_states));
+        }
+        if summary.imputed > 0 {
+            notes.push(format!("{} missing values imputed", summary.imputed));
+        }
+        table.push([
+            summary.name.clone(),
+            summary.states.to_string(),
+            summary.requested_states.to_string(),
+            format!("{:.3}", summary.log_likelihood),
+            format!("{:.3}", summary.bic),
+            format!("{:?}", summary.block_sizes),
+            validation_errors.map_or("—".into(), |v| format!("{:.4}", v[i])),
+            notes.join("; "),
+        ]);
+    }
+    println!("{table}");
+    let threshold = model.track_settings().conflict_threshold;
+    eprintln!(
+        "trained on {} sample poses; conflict threshold {}{}; model written to {}",
+        sample.poses.len(),
+        match threshold {
+            ConflictLevel::Infinite => "inf".to_string(),
+            ConflictLevel::Finite(k) => format!("{k:.4}"),
+        },
+        if model.threshold_learned() {
+            " (learned)"
+        } else {
+            ""
+        },
+        args.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn track(args: &TrackArgs) -> Result<ExitCode> {
+    let evidential = Evidential::load(&args.model)
+        .with_context(|| format!("loading the model {}", args.model.display()))?;
+    let estimator =
+        evidential.with_track_settings(args.track.apply(evidential.model().track_settings())?)?;
+    let config = estimator.feature_config().cloned().with_context(|| {
+        format!(
+            "{} records no feature configuration, so its features cannot be extracted here",
+            args.model.display()
+        )
+    })?;
+    let set = config.check()?;
+    let names = set.names();
+    if names != estimator.feature_names() {
+        bail!(
+            "the model's features {:?} do not match its configuration's {names:?}: \
+             the model file was edited or is corrupted",
+            estimator.feature_names()
+        );
+    }
+    let dataset = read_dataset(&args.dataset)?;
+    let bar = progress_bar("track");
+    bar.set_length(dataset.len() as u64);
+    let label = args
+        .dataset
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "dataset".into());
+    let mut records = Vec::with_capacity(dataset.len());
+    for (i, frame) in dataset.frames.iter().enumerate() {
+        let estimate = estimator.estimate(&set.extract(&frame.image))?;
+        let truth = frame.truth.map(|t| [t.x, t.y]);
+        records.push(FrameRecord::new(
+            &label, i, frame.t, truth, &estimate, &names,
+        ));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let sink = output_sink(args.out.as_deref())?;
+    write_frames_csv(sink, &records, &names)?;
+    let errors: Vec<f64> = records.iter().filter_map(|r| r.error).collect();
+    let flagged = records.iter().filter(|r| !r.flags.is_empty()).count();
+    let without = records.iter().filter(|r| r.estimate.is_none()).count();
+    match ErrorStats::from_errors(&errors) {
+        Some(stats) => eprintln!(
+            "{} frames: error mean {:.4} mm, median {:.4}, RMS {:.4}, max {:.4}; {} flagged, {} without estimate",
+            dataset.len(), stats.mean, stats.median, stats.rms, stats.max, flagged, without
+        ),
+        None => eprintln!(
+            "{} frames tracked ({} flagged, {} without estimate); no ground truth, so no errors",
+            dataset.len(), flagged, without
+        ),
+    }
+    Ok(ExitCode::SUCCESS)
+}

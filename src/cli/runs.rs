@@ -1,0 +1,394 @@
+//! Commands that run scenarios: `run`, `sweep`, `merge`.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+
+use super::{fmt_mm, load_scenarios};
+use evitrack::experiment::{self, Workbench};
+use evitrack::report::{self, write_run, RunSummary, Table};
+use evitrack::scenario::ScenarioSet;
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Scenario file (TOML); default: the built-in paper setup (a). A file with a [sweep]
+    /// section runs its base scenario only (use `sweep` for the variants).
+    scenario: Option<PathBuf>,
+    /// Output folder; results go to <OUT>/<scenario name>/.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Override the scenario's master seed.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// Scenario files (TOML) whose [sweep] variants to run.
+    #[arg(required = true)]
+    scenarios: Vec<PathBuf>,
+    /// Variants run at once (default: the number of cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Compare against each variant's expectations; exit 1 with a list of what regressed.
+    #[arg(long)]
+    check: bool,
+    /// Run only slice i of n (1-based, e.g. `2/4`) of the variants, for batch schedulers; merge
+    /// the shards' JSON files with `evitrack merge`.
+    #[arg(long)]
+    shard: Option<String>,
+    /// Output folder.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    /// Shard result files (`sweep-shard-*.json`) written by `sweep --shard`.
+    #[arg(required = true)]
+    shards: Vec<PathBuf>,
+    /// Output folder for the merged table, CSV, JSON and plots.
+    #[arg(long)]
+    out: PathBuf,
+    /// Compare against the expectations; exit 1 with a list of what regressed.
+    #[arg(long)]
+    check: bool,
+}
+
+fn error_table(summaries: &[&RunSummary]) -> Table {
+    let mut table = Table::new([
+        "scenario",
+        "samples",
+        "states",
+        "constructor",
+        "mean",
+        "median",
+        "RMS",
+        "max",
+        "paper",
+        "no est.",
+        "flagged",
+    ]);
+    for s in summaries {
+        let states: Vec<String> = s.states.iter().map(usize::to_string).collect();
+        table.push([
+            s.scenario.clone(),
+            s.samples.to_string(),
+            states.join(","),
+            s.constructor.clone(),
+            fmt_mm(s.error.map(|e| e.mean)),
+            fmt_mm(s.error.map(|e| e.median)),
+            fmt_mm(s.error.map(|e| e.rms)),
+            fmt_mm(s.error.map(|e| e.max)),
+            fmt_mm(s.paper_error),
+            format!("{}/{}", s.frames_without_estimate, s.frames),
+            s.frames_flagged.to_string(),
+        ]);
+    }
+    table
+}
+
+/// Progress bars for the stages of runs, one line per variant.
+struct StageBars {
+    multi: MultiProgress,
+    bars: Vec<ProgressBar>,
+}
+
+impl StageBars {
+    fn new(names: &[String]) -> Self {
+        let multi = MultiProgress::new();
+        let style = ProgressStyle::with_template("{prefix:>24} {msg:>14} [{bar:30}] {pos}/{len}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> ");
+        let bars = names
+            .iter()
+            .map(|name| {
+                let bar = multi.add(ProgressBar::new(0));
+                bar.set_style(style.clone());
+                bar.set_prefix(name.clone());
+                bar
+            })
+            .collect();
+        Self { multi, bars }
+    }
+
+    fn update(&self, variant: usize, stage: &str, done: usize, total: usize) {
+        if let Some(bar) = self.bars.get(variant) {
+            if bar.message() != stage {
+                bar.set_message(stage.to_string());
+            }
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+    }
+
+    fn finish(&self) {
+        for bar in &self.bars {
+            bar.finish_and_clear();
+        }
+        let _ = self.multi.clear();
+    }
+}
+
+pub fn run(args: &RunArgs) -> Result<ExitCode> {
+    let set = load_scenarios(args.scenario.as_deref())?;
+    let scenario = match args.seed {
+        Some(seed) => set.base.with_seed(seed)?,
+        None => set.base,
+    };
+    let bench = Workbench::new();
+    let bars = StageBars::new(&[scenario.name().to_string()]);
+    let output = experiment::run(&scenario, &bench, &mut |stage, done, total| {
+        bars.update(0, stage, done, total)
+    });
+    bars.finish();
+    let output = output.with_context(|| format!("running scenario `{}`", scenario.name()))?;
+    let dir = args.out.join(scenario.name());
+    let written = write_run(&dir, &output)?;
+    println!("{}", error_table(&[&output.summary]));
+    for (label, stats) in &output.summary.per_motion {
+        if output.summary.per_motion.len() > 1 {
+            println!("  {label}: mean {}", fmt_mm(stats.map(|s| s.mean)));
+        }
+    }
+    eprintln!(
+        "errors in mm; wrote {} files to {}",
+        written.len(),
+        dir.display()
+    );
+    let missed = output.summary.regressions();
+    for line in &missed {
+        eprintln!("regression: {line}");
+    }
+    Ok(if missed.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+/// Parses `i/n` (1-based) into a zero-based slice index and the slice count.
+fn parse_shard(text: &str) -> Result<(usize, usize)> {
+    let parsed = text.split_once('/').and_then(|(i, n)| {
+        Some((
+            i.trim().parse::<usize>().ok()?,
+            n.trim().parse::<usize>().ok()?,
+        ))
+    });
+    match parsed {
+        Some((i, n)) if n >= 1 && (1..=n).contains(&i) => Ok((i - 1, n)),
+        _ => bail!("--shard `{text}` must look like `i/n` with 1 ≤ i ≤ n, e.g. `2/4`"),
+    }
+}
+
+pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
+    let mut variants = Vec::new();
+    for path in &args.scenarios {
+        let set = ScenarioSet::load(path)?;
+        variants.extend(set.variants);
+    }
+    let names: std::collections::HashSet<&str> = variants.iter().map(|v| v.name()).collect();
+    if names.len() != variants.len() {
+        bail!("two variants of these scenario files have the same name: rename one scenario");
+    }
+    let total = variants.len();
+    let shard = args.shard.as_deref().map(parse_shard).transpose()?;
+    if let Some((i, n)) = shard {
+        variants = variants
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| k % n == i)
+            .map(|(_, v)| v)
+            .collect();
+        eprintln!(
+            "shard {}/{n}: {} of {total} variants",
+            i + 1,
+            variants.len()
+        );
+    }
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let bench = Workbench::new();
+    let labels: Vec<String> = variants.iter().map(|v| v.name().to_string()).collect();
+    let bars = StageBars::new(&labels);
+    let clock = std::time::Instant::now();
+    let outputs = experiment::run_all(&variants, jobs, &bench, &|i, stage, done, total| {
+        bars.update(i, stage, done, total)
+    });
+    bars.finish();
+    let elapsed = clock.elapsed().as_secs_f64();
+    let mut summaries = Vec::new();
+    let mut failures = Vec::new();
+    for (variant, output) in variants.iter().zip(outputs) {
+        match output {
+            Ok(output) => {
+                // A variant whose files cannot be written is reported, not the whole sweep lost.
+                if let Err(error) = write_run(&args.out.join(variant.name()), &output) {
+                    failures.push(format!("{}: {error}", variant.name()));
+                }
+                summaries.push(output.summary);
+            }
+            Err(error) => failures.push(format!("{}: {error}", variant.name())),
+        }
+    }
+    let file_name = match shard {
+        Some((i, n)) => format!("sweep-shard-{}-of-{n}.json", i + 1),
+        None => "sweep.json".to_string(),
+    };
+    write_sweep_report(&args.out, &file_name, &summaries)?;
+    eprintln!(
+        "{} variants in {elapsed:.1} s on {jobs} jobs; per-variant outputs in {}/<variant>/",
+        summaries.len(),
+        args.out.display()
+    );
+    finish_sweep(&summaries, &failures, args.check)
+}
+
+/// Prints the table, writes JSON, CSV and plots of a set of run summaries.
+fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let refs: Vec<&RunSummary> = summaries.iter().collect();
+    println!("{}", error_table(&refs));
+    let json_path = out.join(json_name);
+    std::fs::write(&json_path, serde_json::to_string_pretty(summaries)? + "\n")
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    let csv_path = out.join(json_name.replace(".json", ".csv"));
+    let mut csv = csv::Writer::from_path(&csv_path)
+        .with_context(|| format!("writing {}", csv_path.display()))?;
+    csv.write_record([
+        "scenario",
+        "samples",
+        "states",
+        "constructor",
+        "threshold",
+        "mean",
+        "median",
+        "rms",
+        "max",
+        "paper",
+        "frames",
+        "without_estimate",
+        "flagged",
+        "expected_max_mean",
+    ])?;
+    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
+    for s in summaries {
+        let states: Vec<String> = s.states.iter().map(usize::to_string).collect();
+        csv.write_record([
+            s.scenario.clone(),
+            s.samples.to_string(),
+            states.join(" "),
+            s.constructor.clone(),
+            s.conflict_threshold.value().to_string(),
+            num(s.error.map(|e| e.mean)),
+            num(s.error.map(|e| e.median)),
+            num(s.error.map(|e| e.rms)),
+            num(s.error.map(|e| e.max)),
+            num(s.paper_error),
+            s.frames.to_string(),
+            s.frames_without_estimate.to_string(),
+            s.frames_flagged.to_string(),
+            num(s.expect.max_mean_error),
+        ])?;
+    }
+    csv.flush()?;
+    let plotted: Vec<&RunSummary> = summaries.iter().filter(|s| s.error.is_some()).collect();
+    if !plotted.is_empty() {
+        let labels: Vec<String> = plotted.iter().map(|s| s.scenario.clone()).collect();
+        let errors: Vec<f64> = plotted
+            .iter()
+            .filter_map(|s| s.error.map(|e| e.mean))
+            .collect();
+        let paper: Vec<Option<f64>> = plotted.iter().map(|s| s.paper_error).collect();
+        let has_paper = paper.iter().any(Option::is_some);
+        report::plot_errors_by_variant(
+            &out.join(json_name.replace(".json", "-errors.png")),
+            "mean estimation error per variant",
+            &labels,
+            &errors,
+            has_paper.then_some(paper.as_slice()),
+        )?;
+        // Where the variants differ in their state counts, error against the total count.
+        let totals: Vec<usize> = plotted.iter().map(|s| s.states.iter().sum()).collect();
+        if totals
+            .iter()
+            .collect::<std::collections::HashSet<_>>()
+            .len()
+            > 1
+        {
+            let mut points: Vec<(f64, f64)> = totals
+                .iter()
+                .zip(&errors)
+                .map(|(&n, &e)| (n as f64, e))
+                .collect();
+            points.sort_by(|a, b| a.0.total_cmp(&b.0));
+            report::plot_series(
+                &out.join(json_name.replace(".json", "-states.png")),
+                "mean error against the total number of states",
+                "Σ nᵢ (states over all features)",
+                "mean error (mm)",
+                &[report::PlotSeries {
+                    name: "variants".into(),
+                    points,
+                }],
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Reports failures and regressions. Exit status 2 when a variant failed to run or write, else
+/// 1 when `check` finds a regression, else 0.
+fn finish_sweep(summaries: &[RunSummary], failures: &[String], check: bool) -> Result<ExitCode> {
+    for failure in failures {
+        eprintln!("failed: {failure}");
+    }
+    if check {
+        let regressions: Vec<String> = summaries.iter().flat_map(RunSummary::regressions).collect();
+        if regressions.is_empty() {
+            eprintln!(
+                "check: all {} variants meet their expectations",
+                summaries.len()
+            );
+        } else {
+            eprintln!("check: {} regressions", regressions.len());
+            for line in &regressions {
+                eprintln!("  - {line}");
+            }
+        }
+        if failures.is_empty() && !regressions.is_empty() {
+            return Ok(ExitCode::from(1));
+        }
+    }
+    Ok(if failures.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(2)
+    })
+}
+
+pub fn merge(args: &MergeArgs) -> Result<ExitCode> {
+    let mut summaries: Vec<RunSummary> = Vec::new();
+    for path in &args.shards {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let shard: Vec<RunSummary> = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a sweep result file", path.display()))?;
+        summaries.extend(shard);
+    }
+    let mut seen = std::collections::HashSet::new();
+    if let Some(dup) = summaries.iter().find(|s| !seen.insert(s.scenario.clone())) {
+        bail!(
+            "variant `{}` appears in two shard files: merge each shard once",
+            dup.scenario
+        );
+    }
+    write_sweep_report(&args.out, "sweep.json", &summaries)?;
+    finish_sweep(&summaries, &[], args.check)
+}

@@ -1,0 +1,355 @@
+//! The paper's evidential tracker behind the seam: fitting trains one HMM per feature (state
+//! counts given or tuned), measures each feature's own error on the validation motion (the
+//! fallback's ranking) and learns the conflict threshold there (§4.3), and returns a complete
+//! [`EvidentialModel`] with its [`Tracker`].
+
+use std::path::Path;
+
+use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
+use crate::features::FeatureConfig;
+use crate::model::{
+    EvidentialModel, FeatureFrames, FeatureModel, ModelParts, ModelSettings, StateCountTuner,
+    TunerError, Tuning,
+};
+use crate::report::distance;
+use crate::track::{
+    learn_conflict_threshold, FrameEstimate, TrackError, TrackSettings, TrackedFeature, Tracker,
+    TrackerModel,
+};
+
+/// How the evidential tracker is trained and run.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EvidentialSettings {
+    /// HMM state counts and EM (its `seed` is the training seed, used as is).
+    pub model: ModelSettings,
+    /// Constructor, selection, estimator and the conflict threshold (unless learned).
+    pub track: TrackSettings,
+    /// Learn the conflict threshold on the validation motion (§4.3).
+    pub learn_threshold: bool,
+}
+
+/// The evidential tracker of the paper, fitted: its complete model and the tracker built on it.
+#[derive(Debug, Clone)]
+pub struct Evidential {
+    model: EvidentialModel,
+    tracker: Tracker,
+    names: Vec<String>,
+}
+
+impl Evidential {
+    /// Trains on `data`: HMMs and refinings on the sample trajectory, then, when `data` has a
+    /// validation motion, each feature's validation error and (if asked) the conflict threshold.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Training`] for a validation-only setting without a validation motion;
+    /// model and tracker errors otherwise.
+    pub fn fit(settings: &EvidentialSettings, data: &TrainingSet) -> Result<Self, EstimatorError> {
+        let sample = data.sample;
+        let frames = match (&settings.model.tuning, &data.validation) {
+            (Tuning::Validation { .. }, Some(validation)) => {
+                let mut tuner = ValidationTuner {
+                    rows: validation.rows,
+                    truth: validation.poses,
+                    settings: &settings.track,
+                    penalty: data.missing_penalty,
+                };
+                FeatureFrames::train_with_tuner(
+                    sample.poses,
+                    data.feature_names,
+                    sample.rows,
+                    &settings.model,
+                    &mut tuner,
+                )?
+            }
+            (Tuning::Validation { .. }, None) => {
+                return Err(EstimatorError::Training(
+                    "tuning state counts by validation error needs a validation motion".into(),
+                ))
+            }
+            _ => FeatureFrames::train(
+                sample.poses,
+                data.feature_names,
+                sample.rows,
+                &settings.model,
+            )?,
+        };
+        if settings.learn_threshold && data.validation.is_none() {
+            return Err(EstimatorError::Training(
+                "learning the conflict threshold needs a validation motion".into(),
+            ));
+        }
+
+        let mut track = settings.track.clone();
+        let mut validation_errors = None;
+        let mut threshold_learned = false;
+        if let Some(validation) = &data.validation {
+            // One tracker combining every compatible feature, with no fallback ranking yet.
+            let open = TrackSettings {
+                conflict_threshold: crate::evidence::ConflictLevel::Infinite,
+                ..settings.track.clone()
+            };
+            let tracker = build_tracker(&frames, None, &open)?;
+            let mut per_feature = Vec::with_capacity(frames.n_features());
+            for i in 0..frames.n_features() {
+                let only_i: Vec<Vec<Option<f64>>> = validation
+                    .rows
+                    .iter()
+                    .map(|row| {
+                        (0..row.len())
+                            .map(|j| if j == i { row[j] } else { None })
+                            .collect()
+                    })
+                    .collect();
+                let estimates = track_rows(&frames, &tracker, &only_i)?;
+                per_feature.push(validation_error(
+                    &estimates,
+                    validation.poses,
+                    data.missing_penalty,
+                ));
+            }
+            validation_errors = Some(per_feature);
+            if settings.learn_threshold {
+                let estimates = track_rows(&frames, &tracker, validation.rows)?;
+                let mut levels = Vec::new();
+                let mut errors = Vec::new();
+                for ((row, estimate), t) in
+                    validation.rows.iter().zip(&estimates).zip(validation.poses)
+                {
+                    if let Some(p) = estimate.estimate {
+                        levels.push(tracker.full_conflict_level(&frames.likelihoods(row)?)?);
+                        errors.push(distance(p, *t));
+                    }
+                }
+                track.conflict_threshold = learn_conflict_threshold(&levels, &errors)?;
+                threshold_learned = true;
+            }
+        }
+        let model = EvidentialModel::new(ModelParts {
+            frames,
+            feature_config: data.feature_config.cloned(),
+            track,
+            threshold_learned,
+            validation_errors,
+            provenance: data.provenance.clone(),
+        })?;
+        Self::from_model(model)
+    }
+
+    /// The estimator of a complete model (builds its tracker).
+    ///
+    /// # Errors
+    /// Tracker errors (e.g. more features than the tracker accepts).
+    pub fn from_model(model: EvidentialModel) -> Result<Self, EstimatorError> {
+        let tracker = build_tracker(
+            model.frames(),
+            model.validation_errors(),
+            model.track_settings(),
+        )?;
+        let names = model
+            .feature_names()
+            .iter()
+            .map(|n| n.to_string())
+            .collect();
+        Ok(Self {
+            model,
+            tracker,
+            names,
+        })
+    }
+
+    /// Reads a model file (see [`EvidentialModel::load`]).
+    ///
+    /// # Errors
+    /// As [`EvidentialModel::load`] and [`Evidential::from_model`].
+    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
+        Self::from_model(EvidentialModel::load(path)?)
+    }
+
+    /// The complete model.
+    pub fn model(&self) -> &EvidentialModel {
+        &self.model
+    }
+
+    /// The tracker built on it.
+    pub fn tracker(&self) -> &Tracker {
+        &self.tracker
+    }
+
+    /// The same model run with other tracker settings.
+    ///
+    /// # Errors
+    /// Invalid settings.
+    pub fn with_track_settings(&self, track: TrackSettings) -> Result<Self, EstimatorError> {
+        Self::from_model(self.model.with_track_settings(track)?)
+    }
+
+    /// The tracker's full output for one frame of feature values: the estimate plus the relative
+    /// plausibility of every sample pose and the splitting policy's alternatives.
+    ///
+    /// # Errors
+    /// [`EstimatorError::FeatureCount`] when `features` does not have one value per feature.
+    pub fn track(&self, features: &[Option<f64>]) -> Result<FrameEstimate, EstimatorError> {
+        if features.len() != self.names.len() {
+            return Err(EstimatorError::FeatureCount {
+                expected: self.names.len(),
+                found: features.len(),
+            });
+        }
+        Ok(self
+            .tracker
+            .track(&self.model.frames().likelihoods(features)?)?)
+    }
+}
+
+impl PoseEstimator for Evidential {
+    fn method(&self) -> &'static str {
+        crate::model::METHOD
+    }
+
+    fn feature_names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.model.feature_config()
+    }
+
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
+        let frame = self.track(features)?;
+        Ok(PoseEstimate {
+            pose: frame.estimate,
+            uncertainty_radius: frame.uncertainty.map(|u| u.radius),
+            group: Some(frame.group),
+            conflict_level: frame.conflict_level,
+            flags: EstimateFlags {
+                missing: frame.flags.missing().collect(),
+                excluded: frame.flags.excluded,
+                fallback: frame.flags.fallback,
+                combination_failed: frame.flags.combination_failed,
+            },
+        })
+    }
+
+    fn to_json(&self) -> Result<String, EstimatorError> {
+        Ok(self.model.to_json()?)
+    }
+}
+
+/// The tracker's view of trained frames, with these settings and fallback ranking.
+fn build_tracker(
+    frames: &FeatureFrames,
+    validation_errors: Option<&[f64]>,
+    settings: &TrackSettings,
+) -> Result<Tracker, EstimatorError> {
+    let features = frames
+        .features()
+        .iter()
+        .enumerate()
+        .map(|(i, f)| TrackedFeature {
+            refining: f.refining().clone(),
+            validation_error: validation_errors.map(|v| v[i]),
+        })
+        .collect();
+    let min_size = settings.selection.min_size();
+    if min_size > frames.n_features() {
+        return Err(TrackError::InvalidSetting {
+            field: "selection.min_size",
+            reason: format!(
+                "{min_size} is more than the model's {} features: no group could ever be chosen",
+                frames.n_features()
+            ),
+        }
+        .into());
+    }
+    let model = TrackerModel::new(frames.sample_poses().to_vec(), features)?;
+    Ok(Tracker::new(model, settings.clone().check()?)?)
+}
+
+/// Tracks feature rows; returns the per-frame estimates.
+fn track_rows(
+    frames: &FeatureFrames,
+    tracker: &Tracker,
+    rows: &[Vec<Option<f64>>],
+) -> Result<Vec<FrameEstimate>, EstimatorError> {
+    rows.iter()
+        .map(|row| Ok(tracker.track(&frames.likelihoods(row)?)?))
+        .collect()
+}
+
+/// Mean distance of the estimates to the truth, a frame without an estimate counting as
+/// `penalty` (the workspace diagonal), so a feature that rarely gives an estimate ranks low and
+/// the score stays finite.
+fn validation_error(estimates: &[FrameEstimate], truth: &[[f64; 2]], penalty: f64) -> f64 {
+    let total: f64 = estimates
+        .iter()
+        .zip(truth)
+        .map(|(e, t)| e.estimate.map_or(penalty, |p| distance(p, *t)))
+        .sum();
+    total / truth.len().max(1) as f64
+}
+
+/// Scores candidate state counts by the tracking error of the candidate feature alone on the
+/// validation motion (§5.2, "learned from the measured estimation error as nᵢ increases").
+struct ValidationTuner<'a> {
+    rows: &'a [Vec<Option<f64>>],
+    truth: &'a [[f64; 2]],
+    settings: &'a TrackSettings,
+    penalty: f64,
+}
+
+impl StateCountTuner for ValidationTuner<'_> {
+    fn score(
+        &mut self,
+        feature: usize,
+        candidate: &FeatureModel,
+        sample_poses: &[[f64; 2]],
+    ) -> Result<f64, TunerError> {
+        let tracker_model = TrackerModel::new(
+            sample_poses.to_vec(),
+            vec![TrackedFeature {
+                refining: candidate.refining().clone(),
+                validation_error: None,
+            }],
+        )?;
+        let tracker = Tracker::new(tracker_model, self.settings.clone().check()?)?;
+        let estimates = self
+            .rows
+            .iter()
+            .map(|row| tracker.track(&[candidate.likelihoods(row[feature])]))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(validation_error(&estimates, self.truth, self.penalty))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::track::FrameFlags;
+
+    fn frame(estimate: Option<[f64; 2]>) -> FrameEstimate {
+        FrameEstimate {
+            estimate,
+            group: vec![0],
+            conflict_level: Some(0.0),
+            uncertainty: None,
+            plausibility: Vec::new(),
+            alternatives: Vec::new(),
+            flags: FrameFlags::default(),
+        }
+    }
+
+    #[test]
+    fn frames_without_estimate_count_as_the_penalty() {
+        let truth = [[0.0, 40.0], [1.0, 40.0], [2.0, 40.0]];
+        let estimates = [
+            frame(Some([0.0, 41.0])),
+            frame(None),
+            frame(Some([2.0, 43.0])),
+        ];
+        // (1 + 10 + 3) / 3: the missing frame weighs as much as the penalty, not nothing.
+        let score = validation_error(&estimates, &truth, 10.0);
+        assert!((score - 14.0 / 3.0).abs() < 1e-12);
+        let none = [frame(None), frame(None)];
+        assert_eq!(validation_error(&none, &truth[..2], 10.0), 10.0);
+    }
+}

@@ -1,0 +1,236 @@
+//! The pose-estimator seam: anything that learns from a sample trajectory of (features, pose) and
+//! then estimates a pose per frame, with per-frame diagnostics where the method has them.
+//!
+//! The harness ([`crate::experiment`]) fits every configured estimator on the same
+//! [`TrainingSet`] and runs it on identical feature rows; `evitrack train` and `evitrack track` go
+//! through the same seam. The paper's evidential tracker ([`Evidential`]) is the first
+//! implementation. A fitted estimator is self-contained: [`PoseEstimator::to_json`] writes a
+//! model file that [`load`] reads back into an estimator giving the same estimates.
+
+mod evidential;
+
+pub use evidential::{Evidential, EvidentialSettings};
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::Dataset;
+use crate::features::{FeatureConfig, FeatureError, FeatureRows, FeatureSet};
+use crate::model::{ModelError, Provenance};
+use crate::track::TrackError;
+
+/// Failures of fitting, loading or running an estimator.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum EstimatorError {
+    /// Training or loading the evidential model failed.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// Building or running the evidential tracker failed.
+    #[error("tracker: {0}")]
+    Track(#[from] TrackError),
+    /// The feature configuration is invalid.
+    #[error("feature configuration: {0}")]
+    Features(#[from] FeatureError),
+    /// The training set is inconsistent.
+    #[error("training set: {0}")]
+    Training(String),
+    /// A frame has the wrong number of feature values.
+    #[error("the frame has {found} feature values but the estimator was trained on {expected}: pass one value per feature (None when missing)")]
+    FeatureCount {
+        /// Features the estimator was trained on.
+        expected: usize,
+        /// Values given.
+        found: usize,
+    },
+    /// A dataset has no ground truth where it is needed.
+    #[error("{0} has no ground-truth poses: training and validation need them")]
+    NoTruth(String),
+    /// The estimator has no feature configuration, so it cannot extract features from images.
+    #[error("the model records no feature configuration (it was trained on features computed elsewhere): extract the features yourself and call `estimate`")]
+    NoFeatureConfig,
+    /// Reading or writing a model file failed.
+    #[error("model file {path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+}
+
+/// One frame's estimate and diagnostics. Diagnostics a method has no notion of are `None`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseEstimate {
+    /// Estimated pose (mm); `None` when the frame gives the method nothing to estimate from.
+    pub pose: Option<[f64; 2]>,
+    /// Radius around the estimate holding the method's stated share of its belief (mm).
+    pub uncertainty_radius: Option<f64>,
+    /// Features combined for the estimate (ascending indices), for methods that choose them.
+    pub group: Option<Vec<usize>>,
+    /// Level of conflict of the combined features, for evidential methods.
+    pub conflict_level: Option<f64>,
+    /// What deserves attention in this frame.
+    pub flags: EstimateFlags,
+}
+
+/// Flags of one frame's estimate (all empty or false on a clean frame).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EstimateFlags {
+    /// Features with no value in this frame.
+    pub missing: Vec<usize>,
+    /// Usable features the method left out (the conflict graph's rejections).
+    pub excluded: Vec<usize>,
+    /// The method fell back to a reduced estimate (one feature).
+    pub fallback: bool,
+    /// Combining the chosen features gave no usable result.
+    pub combination_failed: bool,
+}
+
+impl PoseEstimate {
+    /// The flags as short words (`missing:…`, `excluded:…`, `fallback`, `combination_failed`,
+    /// `no_estimate`) with feature `names`; empty when the frame is clean.
+    pub fn flag_words(&self, names: &[String]) -> String {
+        let joined = |list: &[usize]| {
+            list.iter()
+                .map(|&i| names[i].as_str())
+                .collect::<Vec<_>>()
+                .join("+")
+        };
+        let flags = &self.flags;
+        let mut parts = Vec::new();
+        if !flags.missing.is_empty() {
+            parts.push(format!("missing:{}", joined(&flags.missing)));
+        }
+        if !flags.excluded.is_empty() {
+            parts.push(format!("excluded:{}", joined(&flags.excluded)));
+        }
+        if flags.fallback {
+            parts.push("fallback".into());
+        }
+        if flags.combination_failed {
+            parts.push("combination_failed".into());
+        }
+        if self.pose.is_none() {
+            parts.push("no_estimate".into());
+        }
+        parts.join(" ")
+    }
+}
+
+/// A fitted pose estimator.
+pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
+    /// The method's name, as written in scenario and model files (`"evidential"`).
+    fn method(&self) -> &'static str;
+
+    /// Names of the features it expects per frame, in order.
+    fn feature_names(&self) -> &[String];
+
+    /// The feature configuration it was trained with, when recorded (needed to track images).
+    fn feature_config(&self) -> Option<&FeatureConfig>;
+
+    /// Estimates one frame from its feature values (one per feature, `None` when missing).
+    ///
+    /// # Errors
+    /// [`EstimatorError::FeatureCount`] when `features` does not have one value per feature.
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError>;
+
+    /// The self-contained model file (JSON) that [`load`] reads back.
+    fn to_json(&self) -> Result<String, EstimatorError>;
+}
+
+/// Ground-truth poses and the feature rows measured at them.
+#[derive(Debug, Clone, Copy)]
+pub struct Labelled<'a> {
+    /// One pose per row (mm).
+    pub poses: &'a [[f64; 2]],
+    /// Feature values, one row per pose.
+    pub rows: &'a [Vec<Option<f64>>],
+}
+
+/// What every estimator is fitted on.
+#[derive(Debug, Clone)]
+pub struct TrainingSet<'a> {
+    /// Feature names, one per column of the rows.
+    pub feature_names: &'a [String],
+    /// The configuration the features were extracted with (`None` for features computed
+    /// elsewhere).
+    pub feature_config: Option<&'a FeatureConfig>,
+    /// The sample trajectory.
+    pub sample: Labelled<'a>,
+    /// A validation motion, for what a method learns on held-out frames.
+    pub validation: Option<Labelled<'a>>,
+    /// The error a validation frame without an estimate counts as (mm): the workspace diagonal.
+    pub missing_penalty: f64,
+    /// Where the model comes from.
+    pub provenance: Provenance,
+}
+
+/// Ground truth and features of a dataset's frames, extracted with one feature set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DatasetFeatures {
+    /// Ground-truth poses (mm).
+    pub poses: Vec<[f64; 2]>,
+    /// Feature rows, one per frame.
+    pub rows: FeatureRows,
+}
+
+impl DatasetFeatures {
+    /// Extracts `set`'s features from every frame of `dataset`; `what` names it in errors.
+    ///
+    /// # Errors
+    /// [`EstimatorError::NoTruth`] when the dataset has no ground-truth poses.
+    pub fn extract(
+        dataset: &Dataset,
+        set: &FeatureSet,
+        what: &str,
+    ) -> Result<Self, EstimatorError> {
+        let poses = dataset
+            .truth_positions()
+            .ok_or_else(|| EstimatorError::NoTruth(what.to_string()))?;
+        Ok(Self {
+            poses,
+            rows: set.extract_batch(dataset.images()),
+        })
+    }
+
+    /// Borrowed view for a [`TrainingSet`].
+    pub fn labelled(&self) -> Labelled<'_> {
+        Labelled {
+            poses: &self.poses,
+            rows: &self.rows,
+        }
+    }
+}
+
+/// The workspace diagonal of a dataset's declared workspace, or of its poses' bounding box: the
+/// largest error an estimate inside it can have.
+pub fn missing_penalty(dataset: &Dataset) -> f64 {
+    if let Some(w) = &dataset.manifest.workspace {
+        return (w.x_max - w.x_min).hypot(w.y_max - w.y_min);
+    }
+    let poses = dataset.truth_positions().unwrap_or_default();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in &poses {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    if poses.is_empty() {
+        0.0
+    } else {
+        (hi[0] - lo[0]).hypot(hi[1] - lo[1])
+    }
+}
+
+/// Reads a model file written by any estimator's [`PoseEstimator::to_json`] and returns the
+/// estimator it describes.
+///
+/// # Errors
+/// [`EstimatorError::Io`] when the file cannot be read; [`EstimatorError::Model`] naming the
+/// path and what is wrong (format version, method, a field) otherwise.
+pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
+    Ok(Box::new(Evidential::load(path)?))
+}

@@ -1,0 +1,245 @@
+//! Running a scenario: simulate, extract features, fit the estimator, track the test motions,
+//! measure against the ground truth.
+//!
+//! The stages are rooms of their own: the [`Workbench`] memoises simulated datasets and feature
+//! rows shared by the variants of a sweep; [`sample_trajectory`] builds the training samples
+//! (kept every k-th, refined adaptively). The estimator is fitted through the
+//! [`crate::estimator`] seam and every test frame goes through
+//! [`PoseEstimator::estimate`](crate::estimator::PoseEstimator::estimate). What a run measured is
+//! recorded and written by [`crate::report`].
+
+mod sample;
+mod workbench;
+
+pub use sample::{sample_trajectory, SampleTrajectory};
+pub use workbench::Workbench;
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use crate::estimator::{
+    EstimatorError, Evidential, EvidentialSettings, Labelled, PoseEstimator, TrainingSet,
+};
+use crate::model::Provenance;
+use crate::report::{ErrorStats, FrameRecord, RunSummary, Timings};
+use crate::scenario::CheckedScenario;
+use crate::seed::{self, ScenarioPart};
+use crate::sim::{SimError, SimSettings};
+
+/// Failures while running a scenario.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ExperimentError {
+    /// The simulator failed (bad settings or motion, or the physics).
+    #[error("simulating {what}: {source}")]
+    Simulate {
+        /// Which trajectory.
+        what: String,
+        /// The simulator's error (shared by the sweep variants that asked for the dataset).
+        source: Arc<SimError>,
+    },
+    /// The adaptive sample trajectory failed.
+    #[error("the adaptive sample trajectory: {0}")]
+    Adaptive(#[from] crate::adaptive::AdaptiveError),
+    /// Fitting or running the estimator failed.
+    #[error("{stage}: {source}")]
+    Estimator {
+        /// Which stage (`training`, `tracking test0:lissajous`, …).
+        stage: String,
+        /// The estimator's error.
+        source: EstimatorError,
+    },
+    /// A dataset has no ground truth where the run needs it.
+    #[error("{0} has no ground truth; simulated datasets always do")]
+    NoTruth(String),
+    /// The variant was not run (a worker thread stopped early).
+    #[error("the variant was not run")]
+    NotRun,
+}
+
+/// Receives progress: stage name, done, total.
+pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
+
+/// Everything a run produced.
+#[derive(Debug, Clone)]
+pub struct RunOutput {
+    /// The numbers.
+    pub summary: RunSummary,
+    /// Every tracked test frame.
+    pub records: Vec<FrameRecord>,
+    /// The fitted estimator (its model file is self-contained).
+    pub estimator: Evidential,
+    /// The sample poses it was trained on.
+    pub samples: Vec<[f64; 2]>,
+    /// For each sample pose, the adaptive round that added it (0: the initial trajectory).
+    pub sample_rounds: Vec<usize>,
+}
+
+/// The penalty of a frame without an estimate: the workspace diagonal, the largest error an
+/// estimate inside the workspace can have.
+pub fn missing_penalty(sim: &SimSettings) -> f64 {
+    let w = sim.geometry.workspace;
+    (w.x_max - w.x_min).hypot(w.y_max - w.y_min)
+}
+
+/// Runs one checked scenario: simulate, extract, fit, track, measure.
+pub fn run(
+    scenario: &CheckedScenario,
+    bench: &Workbench,
+    progress: Progress<'_>,
+) -> Result<RunOutput, ExperimentError> {
+    let s = scenario.get();
+    let mut timings = Timings::default();
+    let set = scenario.feature_set();
+    let names = set.names();
+    let master = s.seed;
+    let sim = &s.sim;
+
+    let sample = sample_trajectory(scenario, bench, progress, &mut timings)?;
+
+    // Validation data, for tuning by validation error, the fallback ranking and the threshold.
+    let validation = match &s.validation {
+        Some(motion) => {
+            let clock = Instant::now();
+            let vseed = seed::for_part(master, ScenarioPart::Validation);
+            let data =
+                bench.dataset(sim, motion, vseed, &mut |d, t| progress("validation", d, t))?;
+            timings.simulate += clock.elapsed().as_secs_f64();
+            let clock = Instant::now();
+            let rows = bench.features(sim, motion, vseed, &s.features, set, &mut |_, _| {})?;
+            timings.features += clock.elapsed().as_secs_f64();
+            let truth = data
+                .truth_positions()
+                .ok_or_else(|| ExperimentError::NoTruth("the validation motion".into()))?;
+            Some((truth, rows))
+        }
+        None => None,
+    };
+
+    // Training, on its own stream of the master seed (`model.seed` picks among streams).
+    let clock = Instant::now();
+    progress("train", 0, 1);
+    let settings = EvidentialSettings {
+        model: crate::model::ModelSettings {
+            seed: seed::for_training(master, s.model.seed),
+            ..s.model.clone()
+        },
+        track: s.track.clone(),
+        learn_threshold: s.learn_threshold,
+    };
+    let training = TrainingSet {
+        feature_names: &names,
+        feature_config: Some(&s.features),
+        sample: Labelled {
+            poses: &sample.poses,
+            rows: &sample.rows,
+        },
+        validation: validation
+            .as_ref()
+            .map(|(truth, rows)| Labelled { poses: truth, rows }),
+        missing_penalty: missing_penalty(sim),
+        provenance: Provenance::new(Some(s.name.clone()), master),
+    };
+    let estimator =
+        Evidential::fit(&settings, &training).map_err(|source| ExperimentError::Estimator {
+            stage: "training".into(),
+            source,
+        })?;
+    progress("train", 1, 1);
+    // Training includes validation (per-feature errors, threshold): one fit, one clock.
+    timings.train = clock.elapsed().as_secs_f64();
+
+    // Tracking the test motions.
+    let mut records = Vec::new();
+    let mut per_motion = Vec::new();
+    for (k, motion) in s.tests.iter().enumerate() {
+        let label = format!("test{k}:{}", motion.name());
+        let clock = Instant::now();
+        let tseed = seed::for_part(master, ScenarioPart::Test(k));
+        let data = bench.dataset(sim, motion, tseed, &mut |d, t| progress(&label, d, t))?;
+        timings.simulate += clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let rows = bench.features(sim, motion, tseed, &s.features, set, &mut |_, _| {})?;
+        timings.features += clock.elapsed().as_secs_f64();
+        let truth = data
+            .truth_positions()
+            .ok_or_else(|| ExperimentError::NoTruth(label.clone()))?;
+        let clock = Instant::now();
+        let mut errors = Vec::new();
+        for (i, (row, frame)) in rows.iter().zip(&data.frames).enumerate() {
+            let estimate =
+                estimator
+                    .estimate(row)
+                    .map_err(|source| ExperimentError::Estimator {
+                        stage: format!("tracking {label}"),
+                        source,
+                    })?;
+            let record = FrameRecord::new(&label, i, frame.t, Some(truth[i]), &estimate, &names);
+            errors.extend(record.error);
+            records.push(record);
+        }
+        timings.track += clock.elapsed().as_secs_f64();
+        per_motion.push((label, ErrorStats::from_errors(&errors)));
+    }
+
+    let model = estimator.model();
+    let summary = RunSummary::new(
+        s,
+        model,
+        sample.adaptive_added(),
+        &records,
+        per_motion,
+        timings,
+    );
+    Ok(RunOutput {
+        summary,
+        records,
+        samples: model.sample_poses().to_vec(),
+        sample_rounds: sample.rounds,
+        estimator,
+    })
+}
+
+/// Runs several scenarios on `jobs` threads sharing one workbench; results come back in input
+/// order. `progress(variant, stage, done, total)` may be called from any thread.
+pub fn run_all(
+    scenarios: &[CheckedScenario],
+    jobs: usize,
+    bench: &Workbench,
+    progress: &(dyn Fn(usize, &str, usize, usize) + Sync),
+) -> Vec<Result<RunOutput, ExperimentError>> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Result<RunOutput, ExperimentError>>>> =
+        Mutex::new((0..scenarios.len()).map(|_| None).collect());
+    std::thread::scope(|scope| {
+        for _ in 0..jobs.clamp(1, scenarios.len().max(1)) {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(scenario) = scenarios.get(i) else {
+                    break;
+                };
+                let result = run(scenario, bench, &mut |stage, done, total| {
+                    progress(i, stage, done, total)
+                });
+                results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(result);
+            });
+        }
+    });
+    results
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .map(|r| r.unwrap_or(Err(ExperimentError::NotRun)))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_penalty_is_the_workspace_diagonal() {
+        let diagonal = missing_penalty(&SimSettings::default());
+        assert!((diagonal - 19.0 * 2f64.sqrt()).abs() < 1e-9);
+    }
+}
