@@ -5,6 +5,7 @@ mod cli;
 mod dataset;
 mod evidence;
 mod features;
+mod front_door;
 mod hmm;
 mod model;
 mod pipeline;

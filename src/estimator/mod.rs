@@ -167,6 +167,43 @@ pub struct TrainingSet<'a> {
     pub provenance: Provenance,
 }
 
+impl<'a> TrainingSet<'a> {
+    /// A training set of a sample trajectory alone: no feature configuration, no validation
+    /// motion, the diagonal of the sample poses' bounding box as the missing penalty, and a
+    /// provenance with no scenario and seed 0. The `with_*` methods add the rest.
+    pub fn new(feature_names: &'a [String], sample: Labelled<'a>) -> Self {
+        Self {
+            feature_names,
+            feature_config: None,
+            sample,
+            validation: None,
+            missing_penalty: bounding_diagonal(sample.poses),
+            provenance: Provenance::new(None, 0),
+        }
+    }
+
+    /// With the configuration the features were extracted with (so the model can track images).
+    pub fn with_config(self, config: &'a FeatureConfig) -> Self {
+        Self {
+            feature_config: Some(config),
+            ..self
+        }
+    }
+
+    /// With a validation motion.
+    pub fn with_validation(self, validation: Labelled<'a>) -> Self {
+        Self {
+            validation: Some(validation),
+            ..self
+        }
+    }
+
+    /// With a provenance.
+    pub fn with_provenance(self, provenance: Provenance) -> Self {
+        Self { provenance, ..self }
+    }
+}
+
 /// Ground truth and features of a dataset's frames, extracted with one feature set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DatasetFeatures {
@@ -207,12 +244,16 @@ impl DatasetFeatures {
 /// The workspace diagonal of a dataset's declared workspace, or of its poses' bounding box: the
 /// largest error an estimate inside it can have.
 pub fn missing_penalty(dataset: &Dataset) -> f64 {
-    if let Some(w) = &dataset.manifest.workspace {
-        return (w.x_max - w.x_min).hypot(w.y_max - w.y_min);
+    match &dataset.manifest.workspace {
+        Some(w) => (w.x_max - w.x_min).hypot(w.y_max - w.y_min),
+        None => bounding_diagonal(&dataset.truth_positions().unwrap_or_default()),
     }
-    let poses = dataset.truth_positions().unwrap_or_default();
+}
+
+/// The diagonal of the poses' bounding box (0 without poses).
+fn bounding_diagonal(poses: &[[f64; 2]]) -> f64 {
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in &poses {
+    for p in poses {
         for k in 0..2 {
             lo[k] = lo[k].min(p[k]);
             hi[k] = hi[k].max(p[k]);

@@ -104,8 +104,17 @@ pub fn sample_trajectory(
         timings.simulate += clock.elapsed().as_secs_f64();
     }
 
+    // Each adaptive batch starts its clock at 0: shift it to follow the frame before, so the
+    // dataset's times keep increasing (1 ms between batches).
+    let mut shift = 0.0;
+    let mut previous = f64::NEG_INFINITY;
     for (k, frame) in frames.iter_mut().enumerate() {
         frame.file = frame_file_name(k);
+        if frame.t + shift < previous {
+            shift = previous - frame.t + 1e-3;
+        }
+        frame.t += shift;
+        previous = frame.t;
     }
     let mut manifest = full.manifest.clone();
     manifest.frame_count = frames.len();

@@ -1,0 +1,331 @@
+//! The front door: model files written by `run`, `sweep` and `train` track with `evitrack track`
+//! and give exactly the run's estimates; `simulate --scenario` writes exactly the frames a run
+//! uses; scenarios are checked before anything runs.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn evitrack(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_evitrack"))
+        .args(args)
+        .output()
+        .expect("the evitrack binary runs")
+}
+
+fn ok(out: Output) -> Output {
+    assert!(
+        out.status.success(),
+        "exit {:?}: {}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// The rows of a frames CSV without the motion label (a run names it `test0:circle`, `track`
+/// after the dataset folder).
+fn rows_without_label(path: &Path) -> Vec<Vec<String>> {
+    let mut reader = csv::Reader::from_path(path).unwrap();
+    let header = reader.headers().unwrap().clone();
+    assert_eq!(&header[0], "motion");
+    reader
+        .records()
+        .map(|r| r.unwrap().iter().skip(1).map(String::from).collect())
+        .collect()
+}
+
+const SCENARIO: &str = r#"
+name = "door"
+learn_threshold = true
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+[validation]
+kind = "random_path"
+speed = 8.0
+duration = 4.0
+fps = 10.0
+[[tests]]
+kind = "circle"
+radius = 4.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+[features.barycentre]
+enabled = true
+[model]
+states = 4
+[track]
+constructor = "consonant"
+selection = { policy = "lowest_conflict", min_size = 2 }
+
+[[sweep.variant]]
+name = "map"
+set = { "track.estimator" = "map", "track.constructor" = "bayesian" }
+
+[[sweep.variant]]
+name = "sparse"
+set = { "sample.keep_every" = 2 }
+"#;
+
+/// Tracks the scenario's test motion (as `simulate --scenario` writes it) with a model file and
+/// checks the estimates equal the run's `frames.csv`.
+fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str>, run_dir: &Path) {
+    let label = variant.unwrap_or("base");
+    let test = dir.join(format!("test-{label}"));
+    let mut args = vec![
+        "simulate",
+        "--scenario",
+        scenario.to_str().unwrap(),
+        "--part",
+        "test",
+        "--out",
+        test.to_str().unwrap(),
+    ];
+    if let Some(v) = variant {
+        args.extend(["--variant", v]);
+    }
+    ok(evitrack(&args));
+    let estimates = dir.join(format!("est-{label}.csv"));
+    ok(evitrack(&[
+        "track",
+        test.to_str().unwrap(),
+        "--model",
+        run_dir.join("model.json").to_str().unwrap(),
+        "--out",
+        estimates.to_str().unwrap(),
+    ]));
+    let tracked = rows_without_label(&estimates);
+    let ran = rows_without_label(&run_dir.join("frames.csv"));
+    assert_eq!(tracked.len(), 20);
+    assert_eq!(tracked, ran, "{label}: track and run disagree");
+}
+
+#[test]
+fn run_and_sweep_models_track_to_the_runs_own_estimates() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("door.toml");
+    std::fs::write(&scenario, SCENARIO).unwrap();
+    let out = dir.path().join("out");
+    let out_text = out.to_str().unwrap();
+    ok(evitrack(&[
+        "run",
+        scenario.to_str().unwrap(),
+        "--out",
+        out_text,
+    ]));
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("door/model.json")).unwrap())
+            .unwrap();
+    // The model file carries what tracking needs: settings, learned threshold, provenance.
+    assert_eq!(model["method"], "evidential");
+    assert_eq!(model["track"]["constructor"], "consonant");
+    assert_eq!(model["threshold_learned"], true);
+    assert!(model["track"]["conflict_threshold"].is_number());
+    assert_eq!(model["validation_errors"].as_array().unwrap().len(), 8);
+    assert_eq!(model["provenance"]["scenario"], "door");
+    assert_eq!(model["provenance"]["seed"], 1);
+    assert_eq!(
+        model["provenance"]["crate_version"],
+        env!("CARGO_PKG_VERSION")
+    );
+    assert_model_reproduces_run(dir.path(), &scenario, None, &out.join("door"));
+
+    let sweep_out = dir.path().join("sweep");
+    ok(evitrack(&[
+        "sweep",
+        scenario.to_str().unwrap(),
+        "--out",
+        sweep_out.to_str().unwrap(),
+    ]));
+    for variant in ["map", "sparse"] {
+        let run_dir = sweep_out.join(format!("door-{variant}"));
+        assert_model_reproduces_run(dir.path(), &scenario, Some(variant), &run_dir);
+    }
+    // The variant name can also be given in full; an unknown one lists the known ones.
+    let bad = evitrack(&[
+        "simulate",
+        "--scenario",
+        scenario.to_str().unwrap(),
+        "--variant",
+        "dense",
+        "--out",
+        dir.path().join("x").to_str().unwrap(),
+    ]);
+    assert_eq!(bad.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert!(stderr.contains("door-map, door-sparse"), "{stderr}");
+}
+
+#[test]
+fn simulate_sample_part_writes_the_trajectory_the_run_trains_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("s.toml");
+    std::fs::write(
+        &scenario,
+        r#"
+name = "s"
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+adaptive = { threshold = 0.1, max_samples = 130, max_rounds = 2 }
+[[tests]]
+kind = "circle"
+radius = 4.0
+speed = 10.0
+duration = 1.0
+fps = 10.0
+[[sweep.variant]]
+name = "sparse"
+set = { "sample.keep_every" = 2, "sample.adaptive" = {} }
+"#
+        .replace(", \"sample.adaptive\" = {}", ""),
+    )
+    .unwrap();
+    let out = dir.path().join("out");
+    ok(evitrack(&[
+        "sweep",
+        scenario.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    let sample = dir.path().join("sample");
+    ok(evitrack(&[
+        "simulate",
+        "--scenario",
+        scenario.to_str().unwrap(),
+        "--variant",
+        "sparse",
+        "--out",
+        sample.to_str().unwrap(),
+    ]));
+    let written = evitrack::dataset::Dataset::read(&sample).unwrap();
+    let mut reader = csv::Reader::from_path(out.join("s-sparse/samples.csv")).unwrap();
+    let trained: Vec<[f64; 2]> = reader
+        .records()
+        .map(|r| {
+            let r = r.unwrap();
+            [r[0].parse().unwrap(), r[1].parse().unwrap()]
+        })
+        .collect();
+    // Every other node of the 100-node mesh, then the adaptive samples, in the run's order.
+    assert!(trained.len() > 50, "the adaptive rounds add samples");
+    assert_eq!(written.len(), trained.len());
+    for (frame, pose) in written.frames.iter().zip(&trained) {
+        let t = frame.truth.unwrap();
+        assert_eq!([t.x, t.y], *pose);
+    }
+}
+
+#[test]
+fn train_with_a_validation_dataset_learns_threshold_and_feature_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    ok(evitrack(&[
+        "simulate",
+        "--out",
+        &path("sample"),
+        "--motion",
+        r#"kind = "mesh", spacing = 2.0"#,
+    ]));
+    ok(evitrack(&[
+        "simulate",
+        "--out",
+        &path("validation"),
+        "--seed",
+        "5",
+        "--motion",
+        r#"kind = "random_path", speed = 8, duration = 3, fps = 10"#,
+    ]));
+    let sample = path("sample");
+    let train = |out: &str, extra: &[&str]| {
+        let out = path(out);
+        let mut args = vec![
+            "train",
+            &sample,
+            "--out",
+            &out,
+            "--barycentre",
+            "--states",
+            "4",
+        ];
+        args.extend(extra);
+        let output = ok(evitrack(&args));
+        let model: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+        (output, model)
+    };
+    let (output, learned) = train("learned.json", &["--validation", &path("validation")]);
+    assert_eq!(learned["threshold_learned"], true);
+    let threshold = learned["track"]["conflict_threshold"].as_f64().unwrap();
+    assert!(threshold.is_finite() && threshold > 0.0, "{threshold}");
+    let errors = learned["validation_errors"].as_array().unwrap();
+    assert_eq!(errors.len(), 8);
+    assert!(errors.iter().all(|e| e.as_f64().unwrap() > 0.0));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(stderr.contains("(learned)"), "{stderr}");
+
+    let (_, kept) = train(
+        "kept.json",
+        &[
+            "--validation",
+            &path("validation"),
+            "--keep-threshold",
+            "--threshold",
+            "0.5",
+        ],
+    );
+    assert_eq!(kept["threshold_learned"], false);
+    assert_eq!(kept["track"]["conflict_threshold"], 0.5);
+    assert_eq!(kept["validation_errors"], learned["validation_errors"]);
+
+    let (_, plain) = train("plain.json", &["--constructor", "consonant"]);
+    assert!(plain["validation_errors"].is_null());
+    assert_eq!(plain["track"]["conflict_threshold"], "inf");
+    assert_eq!(plain["track"]["constructor"], "consonant");
+    // The model's own settings are used unless the command line replaces them.
+    let tracked = ok(evitrack(&[
+        "track",
+        &path("validation"),
+        "--model",
+        &path("learned.json"),
+    ]));
+    assert_eq!(String::from_utf8_lossy(&tracked.stdout).lines().count(), 31);
+    let bad = evitrack(&[
+        "track",
+        &path("validation"),
+        "--model",
+        &path("learned.json"),
+        "--selection",
+        "lowest:9",
+    ]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&bad.stderr).contains("more than the model's 8 features"),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
+}
+
+#[test]
+fn too_many_features_are_refused_before_anything_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("wide.toml");
+    std::fs::write(
+        &scenario,
+        "name = \"wide\"\n[features]\nsize_functions = { lines = 32 }\n[model]\nstates = 3\n",
+    )
+    .unwrap();
+    let out = evitrack(&[
+        "run",
+        scenario.to_str().unwrap(),
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("32 features") && stderr.contains("at most 16"),
+        "{stderr}"
+    );
+    // Refused by the check: nothing was simulated or written.
+    assert!(!dir.path().join("wide").exists());
+}
