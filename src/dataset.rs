@@ -88,16 +88,9 @@ pub struct Rect {
     pub y_max: f64,
 }
 
-/// Which way round the scene is drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Polarity {
-    /// Bright robot on a dark background (the simulator's default).
-    #[default]
-    BrightOnDark,
-    /// Dark robot on a bright background (e.g. a backlit rig).
-    DarkOnBright,
-}
+/// Which way round the scene is drawn: the features' own type, so a manifest's polarity is the
+/// one feature extraction takes.
+pub use crate::features::Polarity;
 
 /// A top-down orthographic camera: image size and where it looks.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -189,19 +189,6 @@ impl<'a> TrainingSet<'a> {
             ..self
         }
     }
-
-    /// With a validation motion.
-    pub fn with_validation(self, validation: Labelled<'a>) -> Self {
-        Self {
-            validation: Some(validation),
-            ..self
-        }
-    }
-
-    /// With a provenance.
-    pub fn with_provenance(self, provenance: Provenance) -> Self {
-        Self { provenance, ..self }
-    }
 }
 
 /// Ground truth and features of a dataset's frames, extracted with one feature set.
