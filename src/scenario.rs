@@ -13,6 +13,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
+use crate::estimator::Method;
 use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
 use crate::seed;
@@ -82,10 +83,24 @@ impl Default for SampleSettings {
     }
 }
 
-/// What a run is expected to achieve; `sweep --check` fails when a variant misses it.
+/// What a run is expected to achieve; `sweep --check` fails when a variant misses it. The
+/// top-level limits are the evidential tracker's; `[expect.methods.knn]` and so on give other
+/// methods their own.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Expectations {
+    /// Largest acceptable mean estimation error over all test frames, in mm.
+    pub max_mean_error: Option<f64>,
+    /// Largest acceptable share of test frames without an estimate (0 to 1).
+    pub max_missing_share: Option<f64>,
+    /// Limits of other methods, by method name.
+    pub methods: BTreeMap<String, MethodExpectations>,
+}
+
+/// What one method is expected to achieve.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MethodExpectations {
     /// Largest acceptable mean estimation error over all test frames, in mm.
     pub max_mean_error: Option<f64>,
     /// Largest acceptable share of test frames without an estimate (0 to 1).
@@ -120,6 +135,8 @@ pub struct Scenario {
     /// Learn the conflict threshold on the validation motion (§4.3) instead of using
     /// `track.conflict_threshold`.
     pub learn_threshold: bool,
+    /// The estimation methods to fit and compare, in table order (default: every method).
+    pub estimators: Vec<Method>,
     /// Regression expectations.
     pub expect: Expectations,
     /// The paper's figure for this setup, printed beside ours.
@@ -147,6 +164,7 @@ impl Default for Scenario {
             },
             track: TrackSettings::default(),
             learn_threshold: false,
+            estimators: Method::ALL.to_vec(),
             expect: Expectations::default(),
             paper_error: None,
             sweep: Sweep::default(),
@@ -210,30 +228,34 @@ impl Scenario {
             .features
             .check()
             .map_err(|e| invalid(format!("[features]: {e}")))?;
-        if features.len() > MAX_FEATURES {
-            return Err(invalid(format!(
-                "[features]: {} features, but the tracker takes at most {MAX_FEATURES}: use fewer \
-                 size-function lines or drop the barycentre",
-                features.len()
-            )));
-        }
-        let min_size = self.track.selection.min_size();
-        if min_size > features.len() {
-            return Err(invalid(format!(
-                "[track]: selection `min_size = {min_size}` is more than the {} features: no group \
-                 could ever be chosen",
-                features.len()
-            )));
-        }
         self.model
             .check()
             .map_err(|e| invalid(format!("[model]: {e}")))?;
-        self.model.state_ranges(features.len()).map_err(|e| {
-            invalid(format!(
-                "[model]: {e} (the features are {})",
-                features.names().join(", ")
-            ))
-        })?;
+        // What only the evidential tracker limits (its groups are bit masks, its states per
+        // feature are listed per feature).
+        if self.estimators.contains(&Method::Evidential) {
+            if features.len() > MAX_FEATURES {
+                return Err(invalid(format!(
+                    "[features]: {} features, but the tracker takes at most {MAX_FEATURES}: use fewer \
+                     size-function lines or drop the barycentre",
+                    features.len()
+                )));
+            }
+            let min_size = self.track.selection.min_size();
+            if min_size > features.len() {
+                return Err(invalid(format!(
+                    "[track]: selection `min_size = {min_size}` is more than the {} features: no group \
+                     could ever be chosen",
+                    features.len()
+                )));
+            }
+            self.model.state_ranges(features.len()).map_err(|e| {
+                invalid(format!(
+                    "[model]: {e} (the features are {})",
+                    features.names().join(", ")
+                ))
+            })?;
+        }
         self.track
             .clone()
             .check()
@@ -267,13 +289,49 @@ impl Scenario {
             ))),
             _ => Ok(()),
         };
-        positive(self.expect.max_mean_error, "expect.max_mean_error")?;
         positive(self.paper_error, "paper_error")?;
-        if let Some(share) = self.expect.max_missing_share {
-            if !(0.0..=1.0).contains(&share) {
-                return Err(invalid(format!(
-                    "`expect.max_missing_share` must lie in [0, 1], not {share}"
-                )));
+        if self.estimators.is_empty() {
+            return Err(invalid(
+                "`estimators` is empty: name at least one method, e.g. [\"evidential\"]".into(),
+            ));
+        }
+        if let Some(m) = self
+            .estimators
+            .iter()
+            .enumerate()
+            .find_map(|(i, m)| self.estimators[..i].contains(m).then_some(m))
+        {
+            return Err(invalid(format!("`estimators` names `{m}` twice")));
+        }
+        let top = MethodExpectations {
+            max_mean_error: self.expect.max_mean_error,
+            max_missing_share: self.expect.max_missing_share,
+        };
+        let named = self.expect.methods.iter().map(|(n, e)| (n.as_str(), e));
+        for (name, limits) in std::iter::once(("evidential", &top)).chain(named) {
+            let prefix = if name == "evidential" {
+                "expect".to_string()
+            } else {
+                format!("expect.methods.{name}")
+            };
+            let limited = limits.max_mean_error.is_some() || limits.max_missing_share.is_some();
+            if (limited || name != "evidential")
+                && !self.estimators.iter().any(|m| m.name() == name)
+            {
+                {
+                    return Err(invalid(format!(
+                        "`{prefix}`: the scenario's estimators {:?} do not include `{name}`",
+                        self.estimators.iter().map(|m| m.name()).collect::<Vec<_>>()
+                    )));
+                }
+            }
+            positive(limits.max_mean_error, &format!("{prefix}.max_mean_error"))?;
+            if let Some(share) = limits.max_missing_share {
+                if !(0.0..=1.0).contains(&share) {
+                    return Err(invalid(format!(
+                        "`{prefix}.max_missing_share` must lie in [0, 1], not {share}"
+                    )));
+                }
             }
         }
         let mut scenario = self.clone();

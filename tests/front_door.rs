@@ -22,15 +22,17 @@ fn ok(out: Output) -> Output {
     out
 }
 
-/// The rows of a frames CSV without the motion label (a run names it `test0:circle`, `track`
-/// after the dataset folder).
-fn rows_without_label(path: &Path) -> Vec<Vec<String>> {
+/// The rows of `method` in a frames CSV, without the method and the motion label (a run names
+/// the motion `test0:circle`, `track` after the dataset folder).
+fn rows_without_label(path: &Path, method: &str) -> Vec<Vec<String>> {
     let mut reader = csv::Reader::from_path(path).unwrap();
     let header = reader.headers().unwrap().clone();
-    assert_eq!(&header[0], "motion");
+    assert_eq!((&header[0], &header[1]), ("method", "motion"));
     reader
         .records()
-        .map(|r| r.unwrap().iter().skip(1).map(String::from).collect())
+        .map(|r| r.unwrap())
+        .filter(|r| &r[0] == method)
+        .map(|r| r.iter().skip(2).map(String::from).collect())
         .collect()
 }
 
@@ -94,8 +96,8 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         "--out",
         estimates.to_str().unwrap(),
     ]));
-    let tracked = rows_without_label(&estimates);
-    let ran = rows_without_label(&run_dir.join("frames.csv"));
+    let tracked = rows_without_label(&estimates, "evidential");
+    let ran = rows_without_label(&run_dir.join("frames.csv"), "evidential");
     assert_eq!(tracked.len(), 20);
     assert_eq!(tracked, ran, "{label}: track and run disagree");
 }

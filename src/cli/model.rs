@@ -331,7 +331,13 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         let estimate = estimator.estimate(&set.extract(&frame.image))?;
         let truth = frame.truth.map(|t| [t.x, t.y]);
         records.push(FrameRecord::new(
-            &label, i, frame.t, truth, &estimate, &names,
+            estimator.method(),
+            &label,
+            i,
+            frame.t,
+            truth,
+            &estimate,
+            &names,
         ));
         bar.inc(1);
     }

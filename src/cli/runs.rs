@@ -58,9 +58,12 @@ pub struct MergeArgs {
     check: bool,
 }
 
+/// One row per variant and method: the evidential model's states and constructor, then each
+/// method's errors (the paper's figure beside the evidential row).
 fn error_table(summaries: &[&RunSummary]) -> Table {
     let mut table = Table::new([
         "scenario",
+        "method",
         "samples",
         "states",
         "constructor",
@@ -73,20 +76,27 @@ fn error_table(summaries: &[&RunSummary]) -> Table {
         "flagged",
     ]);
     for s in summaries {
-        let states: Vec<String> = s.states.iter().map(usize::to_string).collect();
-        table.push([
-            s.scenario.clone(),
-            s.samples.to_string(),
-            states.join(","),
-            s.constructor.clone(),
-            fmt_mm(s.error.map(|e| e.mean)),
-            fmt_mm(s.error.map(|e| e.median)),
-            fmt_mm(s.error.map(|e| e.rms)),
-            fmt_mm(s.error.map(|e| e.max)),
-            fmt_mm(s.paper_error),
-            format!("{}/{}", s.frames_without_estimate, s.frames),
-            s.frames_flagged.to_string(),
-        ]);
+        for m in &s.methods {
+            let evidential = s.evidential.as_ref().filter(|_| m.method == "evidential");
+            let states = evidential.map_or(String::new(), |e| {
+                let states: Vec<String> = e.states.iter().map(usize::to_string).collect();
+                states.join(",")
+            });
+            table.push([
+                s.scenario.clone(),
+                m.method.clone(),
+                s.samples.to_string(),
+                states,
+                evidential.map_or(String::new(), |e| e.constructor.clone()),
+                fmt_mm(m.error.map(|e| e.mean)),
+                fmt_mm(m.error.map(|e| e.median)),
+                fmt_mm(m.error.map(|e| e.rms)),
+                fmt_mm(m.error.map(|e| e.max)),
+                fmt_mm(s.paper_error.filter(|_| evidential.is_some())),
+                format!("{}/{}", m.frames_without_estimate, s.frames),
+                m.frames_flagged.to_string(),
+            ]);
+        }
     }
     table
 }
@@ -149,9 +159,15 @@ pub fn run(args: &RunArgs) -> Result<ExitCode> {
     let dir = args.out.join(scenario.name());
     let written = write_run(&dir, &output)?;
     println!("{}", error_table(&[&output.summary]));
-    for (label, stats) in &output.summary.per_motion {
-        if output.summary.per_motion.len() > 1 {
-            println!("  {label}: mean {}", fmt_mm(stats.map(|s| s.mean)));
+    for m in &output.summary.methods {
+        if m.per_motion.len() > 1 {
+            for (label, stats) in &m.per_motion {
+                println!(
+                    "  {} {label}: mean {}",
+                    m.method,
+                    fmt_mm(stats.map(|s| s.mean))
+                );
+            }
         }
     }
     eprintln!(
@@ -263,6 +279,7 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
         .with_context(|| format!("writing {}", csv_path.display()))?;
     csv.write_record([
         "scenario",
+        "method",
         "samples",
         "states",
         "constructor",
@@ -275,70 +292,107 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
         "frames",
         "without_estimate",
         "flagged",
+        "fit_seconds",
         "expected_max_mean",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     for s in summaries {
-        let states: Vec<String> = s.states.iter().map(usize::to_string).collect();
-        csv.write_record([
-            s.scenario.clone(),
-            s.samples.to_string(),
-            states.join(" "),
-            s.constructor.clone(),
-            s.conflict_threshold.value().to_string(),
-            num(s.error.map(|e| e.mean)),
-            num(s.error.map(|e| e.median)),
-            num(s.error.map(|e| e.rms)),
-            num(s.error.map(|e| e.max)),
-            num(s.paper_error),
-            s.frames.to_string(),
-            s.frames_without_estimate.to_string(),
-            s.frames_flagged.to_string(),
-            num(s.expect.max_mean_error),
-        ])?;
+        for m in &s.methods {
+            let evidential = s.evidential.as_ref().filter(|_| m.method == "evidential");
+            let states = evidential.map_or(String::new(), |e| {
+                let states: Vec<String> = e.states.iter().map(usize::to_string).collect();
+                states.join(" ")
+            });
+            let expected = match evidential {
+                Some(_) => s.expect.max_mean_error,
+                None => s
+                    .expect
+                    .methods
+                    .get(&m.method)
+                    .and_then(|e| e.max_mean_error),
+            };
+            csv.write_record([
+                s.scenario.clone(),
+                m.method.clone(),
+                s.samples.to_string(),
+                states,
+                evidential.map_or(String::new(), |e| e.constructor.clone()),
+                evidential.map_or(String::new(), |e| e.conflict_threshold.value().to_string()),
+                num(m.error.map(|e| e.mean)),
+                num(m.error.map(|e| e.median)),
+                num(m.error.map(|e| e.rms)),
+                num(m.error.map(|e| e.max)),
+                num(s.paper_error.filter(|_| evidential.is_some())),
+                s.frames.to_string(),
+                m.frames_without_estimate.to_string(),
+                m.frames_flagged.to_string(),
+                m.fit_seconds.to_string(),
+                num(expected),
+            ])?;
+        }
     }
     csv.flush()?;
-    let plotted: Vec<&RunSummary> = summaries.iter().filter(|s| s.error.is_some()).collect();
-    if !plotted.is_empty() {
-        let labels: Vec<String> = plotted.iter().map(|s| s.scenario.clone()).collect();
-        let errors: Vec<f64> = plotted
-            .iter()
-            .filter_map(|s| s.error.map(|e| e.mean))
-            .collect();
-        let paper: Vec<Option<f64>> = plotted.iter().map(|s| s.paper_error).collect();
-        let has_paper = paper.iter().any(Option::is_some);
+    if summaries.is_empty() {
+        return Ok(());
+    }
+    // One series per method, in the order the methods first appear.
+    let mut names: Vec<&str> = Vec::new();
+    for m in summaries.iter().flat_map(|s| &s.methods) {
+        if !names.contains(&m.method.as_str()) {
+            names.push(&m.method);
+        }
+    }
+    let mean_of = |s: &RunSummary, name: &str| s.method(name).and_then(|m| m.error).map(|e| e.mean);
+    let series: Vec<report::BarSeries> = names
+        .iter()
+        .map(|&name| report::BarSeries {
+            name: name.to_string(),
+            values: summaries.iter().map(|s| mean_of(s, name)).collect(),
+        })
+        .collect();
+    let labels: Vec<String> = summaries.iter().map(|s| s.scenario.clone()).collect();
+    let paper: Vec<Option<f64>> = summaries.iter().map(|s| s.paper_error).collect();
+    let has_paper = paper.iter().any(Option::is_some);
+    let any_error = series.iter().any(|s| s.values.iter().any(Option::is_some));
+    if any_error {
         report::plot_errors_by_variant(
             &out.join(json_name.replace(".json", "-errors.png")),
-            "mean estimation error per variant",
+            "mean estimation error per variant and method",
             &labels,
-            &errors,
+            &series,
             has_paper.then_some(paper.as_slice()),
         )?;
-        // Where the variants differ in their state counts, error against the total count.
-        let totals: Vec<usize> = plotted.iter().map(|s| s.states.iter().sum()).collect();
-        if totals
+    }
+    // Where the variants differ in their evidential state counts, error against the total count.
+    let totals: Vec<Option<usize>> = summaries
+        .iter()
+        .map(|s| s.evidential.as_ref().map(|e| e.states.iter().sum()))
+        .collect();
+    let distinct: std::collections::HashSet<_> = totals.iter().flatten().collect();
+    if distinct.len() > 1 {
+        let lines: Vec<report::PlotSeries> = series
             .iter()
-            .collect::<std::collections::HashSet<_>>()
-            .len()
-            > 1
-        {
-            let mut points: Vec<(f64, f64)> = totals
-                .iter()
-                .zip(&errors)
-                .map(|(&n, &e)| (n as f64, e))
-                .collect();
-            points.sort_by(|a, b| a.0.total_cmp(&b.0));
-            report::plot_series(
-                &out.join(json_name.replace(".json", "-states.png")),
-                "mean error against the total number of states",
-                "Σ nᵢ (states over all features)",
-                "mean error (mm)",
-                &[report::PlotSeries {
-                    name: "variants".into(),
+            .map(|line| {
+                let mut points: Vec<(f64, f64)> = totals
+                    .iter()
+                    .zip(&line.values)
+                    .filter_map(|(n, e)| Some((n.as_ref().copied()? as f64, (*e)?)))
+                    .collect();
+                points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                report::PlotSeries {
+                    name: line.name.clone(),
                     points,
-                }],
-            )?;
-        }
+                }
+            })
+            .filter(|line| !line.points.is_empty())
+            .collect();
+        report::plot_series(
+            &out.join(json_name.replace(".json", "-states.png")),
+            "mean error against the evidential model's total number of states",
+            "Σ nᵢ (states over all features)",
+            "mean error (mm)",
+            &lines,
+        )?;
     }
     Ok(())
 }

@@ -233,6 +233,10 @@ impl PoseEstimator for Evidential {
     fn to_json(&self) -> Result<String, EstimatorError> {
         Ok(self.model.to_json()?)
     }
+
+    fn as_evidential(&self) -> Option<&Evidential> {
+        Some(self)
+    }
 }
 
 /// The tracker's view of trained frames, with these settings and fallback ranking.

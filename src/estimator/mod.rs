@@ -60,6 +60,32 @@ pub enum EstimatorError {
     },
 }
 
+/// The estimation methods behind the seam, by the name scenario and model files use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// The paper's evidential tracker ([`Evidential`]).
+    Evidential,
+}
+
+impl Method {
+    /// Every method, in the order tables list them.
+    pub const ALL: [Method; 1] = [Method::Evidential];
+
+    /// The name scenario and model files use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Evidential => "evidential",
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// One frame's estimate and diagnostics. Diagnostics a method has no notion of are `None`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PoseEstimate {
@@ -138,6 +164,34 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
 
     /// The self-contained model file (JSON) that [`load`] reads back.
     fn to_json(&self) -> Result<String, EstimatorError>;
+
+    /// The evidential tracker behind this estimator, if it is one (for its model's details).
+    fn as_evidential(&self) -> Option<&Evidential> {
+        None
+    }
+}
+
+/// The settings of every method, as a scenario gives them.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EstimatorSettings {
+    /// The evidential tracker's.
+    pub evidential: EvidentialSettings,
+}
+
+impl Method {
+    /// Fits this method on `data`.
+    ///
+    /// # Errors
+    /// The method's fitting errors.
+    pub fn fit(
+        self,
+        settings: &EstimatorSettings,
+        data: &TrainingSet,
+    ) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
+        Ok(match self {
+            Method::Evidential => Box::new(Evidential::fit(&settings.evidential, data)?),
+        })
+    }
 }
 
 /// Ground-truth poses and the feature rows measured at them.

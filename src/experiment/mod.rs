@@ -18,10 +18,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use crate::estimator::{
-    EstimatorError, Evidential, EvidentialSettings, Labelled, PoseEstimator, TrainingSet,
+    EstimatorError, EstimatorSettings, EvidentialSettings, Labelled, PoseEstimator, TrainingSet,
 };
 use crate::model::Provenance;
-use crate::report::{ErrorStats, FrameRecord, RunSummary, Timings};
+use crate::report::{
+    ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, RunSummary, Timings,
+};
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
 use crate::sim::{SimError, SimSettings};
@@ -61,14 +63,14 @@ pub enum ExperimentError {
 pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 
 /// Everything a run produced.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct RunOutput {
     /// The numbers.
     pub summary: RunSummary,
-    /// Every tracked test frame.
+    /// Every test frame, once per method (methods in the scenario's order).
     pub records: Vec<FrameRecord>,
-    /// The fitted estimator (its model file is self-contained).
-    pub estimator: Evidential,
+    /// The fitted estimators, in the scenario's order (their model files are self-contained).
+    pub estimators: Vec<Box<dyn PoseEstimator>>,
     /// The sample poses it was trained on.
     pub samples: Vec<[f64; 2]>,
     /// For each sample pose, the adaptive round that added it (0: the initial trajectory).
@@ -116,16 +118,35 @@ pub fn run(
         None => None,
     };
 
-    // Training, on its own stream of the master seed (`model.seed` picks among streams).
-    let clock = Instant::now();
-    progress("train", 0, 1);
-    let settings = EvidentialSettings {
-        model: crate::model::ModelSettings {
-            seed: seed::for_training(master, s.model.seed),
-            ..s.model.clone()
+    // The test frames: simulated and their features extracted once, for every method.
+    let mut tests = Vec::with_capacity(s.tests.len());
+    for (k, motion) in s.tests.iter().enumerate() {
+        let label = format!("test{k}:{}", motion.name());
+        let clock = Instant::now();
+        let tseed = seed::for_part(master, ScenarioPart::Test(k));
+        let data = bench.dataset(sim, motion, tseed, &mut |d, t| progress(&label, d, t))?;
+        timings.simulate += clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        let rows = bench.features(sim, motion, tseed, &s.features, set, &mut |_, _| {})?;
+        timings.features += clock.elapsed().as_secs_f64();
+        let truth = data
+            .truth_positions()
+            .ok_or_else(|| ExperimentError::NoTruth(label.clone()))?;
+        let times: Vec<f64> = data.frames.iter().map(|f| f.t).collect();
+        tests.push((label, truth, times, rows));
+    }
+
+    // Every method fits on the same training set and estimates the same feature rows.
+    let settings = EstimatorSettings {
+        evidential: EvidentialSettings {
+            // Training on its own stream of the master seed (`model.seed` picks among streams).
+            model: crate::model::ModelSettings {
+                seed: seed::for_training(master, s.model.seed),
+                ..s.model.clone()
+            },
+            track: s.track.clone(),
+            learn_threshold: s.learn_threshold,
         },
-        track: s.track.clone(),
-        learn_threshold: s.learn_threshold,
     };
     let training = TrainingSet {
         feature_names: &names,
@@ -140,63 +161,79 @@ pub fn run(
         missing_penalty: missing_penalty(sim),
         provenance: Provenance::new(Some(s.name.clone()), master),
     };
-    let estimator =
-        Evidential::fit(&settings, &training).map_err(|source| ExperimentError::Estimator {
-            stage: "training".into(),
-            source,
-        })?;
-    progress("train", 1, 1);
-    // Training includes validation (per-feature errors, threshold): one fit, one clock.
-    timings.train = clock.elapsed().as_secs_f64();
-
-    // Tracking the test motions.
+    let mut estimators = Vec::with_capacity(s.estimators.len());
     let mut records = Vec::new();
-    let mut per_motion = Vec::new();
-    for (k, motion) in s.tests.iter().enumerate() {
-        let label = format!("test{k}:{}", motion.name());
+    let mut methods = Vec::with_capacity(s.estimators.len());
+    for &method in &s.estimators {
+        let stage = format!("fit {method}");
         let clock = Instant::now();
-        let tseed = seed::for_part(master, ScenarioPart::Test(k));
-        let data = bench.dataset(sim, motion, tseed, &mut |d, t| progress(&label, d, t))?;
-        timings.simulate += clock.elapsed().as_secs_f64();
+        progress(&stage, 0, 1);
+        let estimator = method
+            .fit(&settings, &training)
+            .map_err(|source| ExperimentError::Estimator { stage, source })?;
+        let fit_seconds = clock.elapsed().as_secs_f64();
         let clock = Instant::now();
-        let rows = bench.features(sim, motion, tseed, &s.features, set, &mut |_, _| {})?;
-        timings.features += clock.elapsed().as_secs_f64();
-        let truth = data
-            .truth_positions()
-            .ok_or_else(|| ExperimentError::NoTruth(label.clone()))?;
-        let clock = Instant::now();
-        let mut errors = Vec::new();
-        for (i, (row, frame)) in rows.iter().zip(&data.frames).enumerate() {
-            let estimate =
-                estimator
-                    .estimate(row)
-                    .map_err(|source| ExperimentError::Estimator {
-                        stage: format!("tracking {label}"),
-                        source,
-                    })?;
-            let record = FrameRecord::new(&label, i, frame.t, Some(truth[i]), &estimate, &names);
-            errors.extend(record.error);
-            records.push(record);
+        let mut method_records = Vec::new();
+        let mut per_motion = Vec::with_capacity(tests.len());
+        for (label, truth, times, rows) in &tests {
+            let mut errors = Vec::new();
+            for (i, row) in rows.iter().enumerate() {
+                let estimate =
+                    estimator
+                        .estimate(row)
+                        .map_err(|source| ExperimentError::Estimator {
+                            stage: format!("{method} on {label}"),
+                            source,
+                        })?;
+                let record = FrameRecord::new(
+                    method.name(),
+                    label,
+                    i,
+                    times[i],
+                    Some(truth[i]),
+                    &estimate,
+                    &names,
+                );
+                errors.extend(record.error);
+                method_records.push(record);
+            }
+            per_motion.push((label.clone(), ErrorStats::from_errors(&errors)));
         }
-        timings.track += clock.elapsed().as_secs_f64();
-        per_motion.push((label, ErrorStats::from_errors(&errors)));
+        let track_seconds = clock.elapsed().as_secs_f64();
+        methods.push(MethodSummary::new(
+            method.name(),
+            &method_records,
+            per_motion,
+            fit_seconds,
+            track_seconds,
+        ));
+        records.extend(method_records);
+        estimators.push(estimator);
     }
 
-    let model = estimator.model();
-    let summary = RunSummary::new(
-        s,
-        model,
-        sample.adaptive_added(),
-        &records,
-        per_motion,
+    let evidential = estimators
+        .iter()
+        .find_map(|e| e.as_evidential())
+        .map(|e| e.model());
+    let summary = RunSummary {
+        scenario: s.name.clone(),
+        seed: master,
+        samples: sample.poses.len(),
+        adaptive_added: sample.adaptive_added(),
+        features: names.clone(),
+        frames: tests.iter().map(|t| t.1.len()).sum(),
+        evidential: evidential.map(EvidentialSummary::of),
+        methods,
+        paper_error: s.paper_error,
+        expect: s.expect.clone(),
         timings,
-    );
+    };
     Ok(RunOutput {
         summary,
         records,
-        samples: model.sample_poses().to_vec(),
+        estimators,
+        samples: sample.poses,
         sample_rounds: sample.rounds,
-        estimator,
     })
 }
 

@@ -7,8 +7,10 @@ mod records;
 mod table;
 
 pub use files::write_run;
-pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, PlotSeries};
-pub use records::{write_frames_csv, FrameRecord, RunSummary, Timings};
+pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
+pub use records::{
+    write_frames_csv, EvidentialSummary, FrameRecord, MethodSummary, RunSummary, Timings,
+};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};

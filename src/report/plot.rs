@@ -212,33 +212,61 @@ pub fn plot_series(
     finish(&root, chart, path)
 }
 
-/// Mean error per variant as bars; `reference` values (e.g. the paper's figures), when given, are
-/// drawn as red markers beside them.
+/// One method's bars: a value per variant (`None` where it has none).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BarSeries {
+    /// Legend entry (the method).
+    pub name: String,
+    /// One value per variant.
+    pub values: Vec<Option<f64>>,
+}
+
+/// Mean error per variant as groups of bars, one bar per series (method), on a logarithmic
+/// scale so that errors of 0.01 mm and 5 mm show side by side; `reference` values (e.g. the
+/// paper's figures), when given, are drawn as red markers over the first series.
 pub fn plot_errors_by_variant(
     path: &Path,
     title: &str,
     labels: &[String],
-    errors: &[f64],
+    series: &[BarSeries],
     reference: Option<&[Option<f64>]>,
 ) -> Result<(), ReportError> {
     ensure_font();
-    if labels.is_empty() || labels.len() != errors.len() {
-        return Err(ReportError::Empty {
-            path: path.display().to_string(),
-            what: format!("{} labels for {} errors", labels.len(), errors.len()),
-        });
+    let empty = |what: String| ReportError::Empty {
+        path: path.display().to_string(),
+        what,
+    };
+    if labels.is_empty() || series.is_empty() {
+        return Err(empty("no variant or no series".into()));
     }
-    let top = errors
-        .iter()
-        .chain(reference.unwrap_or(&[]).iter().flatten())
-        .copied()
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max)
-        .max(1e-3)
-        * 1.15;
+    if let Some(s) = series.iter().find(|s| s.values.len() != labels.len()) {
+        return Err(empty(format!(
+            "series `{}` has {} values for {} labels",
+            s.name,
+            s.values.len(),
+            labels.len()
+        )));
+    }
+    let finite = || {
+        series
+            .iter()
+            .flat_map(|s| s.values.iter().flatten())
+            .chain(reference.unwrap_or(&[]).iter().flatten())
+            .copied()
+            .filter(|v| v.is_finite() && *v > 0.0)
+    };
+    let (Some(low), Some(high)) = (
+        finite().min_by(f64::total_cmp),
+        finite().max_by(f64::total_cmp),
+    ) else {
+        return Err(empty("no positive finite value".into()));
+    };
+    // Bars rise from half a decade below the smallest value; the axis is in log10 units.
+    let floor = low.log10().floor() - 0.5;
+    let top = high.log10().ceil().max(floor + 1.0) + 0.2;
     let root = canvas(path)?;
     let n = labels.len();
-    let mut chart = axes(&root, path, title, (-0.5, n as f64 - 0.5), (0.0, top))?;
+    let mut chart = axes(&root, path, title, (-0.5, n as f64 - 0.5), (floor, top))?;
     let label_of = |x: &f64| {
         let i = x.round();
         if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
@@ -252,27 +280,40 @@ pub fn plot_errors_by_variant(
         .disable_x_mesh()
         .x_labels(n.max(2) * 2 + 1)
         .x_label_formatter(&label_of)
-        .y_desc("mean error (mm)")
+        .y_label_formatter(&|v: &f64| format!("{}", 10f64.powf(*v)))
+        .y_desc("mean error (mm, log scale)")
         .label_style((FONT, 15))
         .axis_desc_style((FONT, 17))
         .draw()
         .map_err(|e| plot_error(path, e))?;
-    let bar = RGBColor(70, 110, 170);
-    chart
-        .draw_series(errors.iter().enumerate().map(|(i, &e)| {
-            let x = i as f64;
-            Rectangle::new([(x - 0.3, 0.0), (x + 0.3, e.max(0.0))], bar.filled())
-        }))
-        .map_err(|e| plot_error(path, e))?
-        .label("this rig")
-        .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], bar.filled()));
+    let width = 0.8 / series.len() as f64;
+    for (k, line) in series.iter().enumerate() {
+        let colour = Palette99::pick(k).to_rgba();
+        let offset = -0.4 + width * k as f64;
+        chart
+            .draw_series(line.values.iter().enumerate().filter_map(|(i, v)| {
+                let v = v.filter(|v| v.is_finite() && *v > 0.0)?;
+                let x = i as f64 + offset;
+                Some(Rectangle::new(
+                    [(x, floor), (x + width * 0.9, v.log10())],
+                    colour.filled(),
+                ))
+            }))
+            .map_err(|e| plot_error(path, e))?
+            .label(line.name.clone())
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
+    }
     if let Some(reference) = reference {
+        let centre = -0.4 + width * 0.45;
         chart
             .draw_series(
                 reference
                     .iter()
                     .enumerate()
-                    .filter_map(|(i, r)| r.map(|r| (i as f64, r)))
+                    .filter_map(|(i, r)| {
+                        r.filter(|r| *r > 0.0)
+                            .map(|r| (i as f64 + centre, r.log10()))
+                    })
                     .map(|p| TriangleMarker::new(p, 8, RED.filled())),
             )
             .map_err(|e| plot_error(path, e))?
@@ -315,6 +356,12 @@ mod tests {
             Err(ReportError::Empty { .. })
         ));
         assert!(plot_errors_by_variant(&path, "t", &[], &[], None).is_err());
+        let short = BarSeries {
+            name: "m".into(),
+            values: vec![Some(1.0)],
+        };
+        let two = ["a".to_string(), "b".to_string()];
+        assert!(plot_errors_by_variant(&path, "t", &two, &[short], None).is_err());
         assert!(plot_series(&path, "t", "x", "y", &[]).is_err());
     }
 
@@ -323,7 +370,23 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let bars = dir.path().join("bars.png");
         let labels = vec!["a".to_string(), "b".to_string()];
-        plot_errors_by_variant(&bars, "t", &labels, &[1.0, 2.0], Some(&[Some(2.3), None])).unwrap();
+        plot_errors_by_variant(
+            &bars,
+            "t",
+            &labels,
+            &[
+                BarSeries {
+                    name: "evidential".into(),
+                    values: vec![Some(1.0), Some(2.0)],
+                },
+                BarSeries {
+                    name: "gp".into(),
+                    values: vec![Some(0.01), None],
+                },
+            ],
+            Some(&[Some(2.3), None]),
+        )
+        .unwrap();
         assert!(image::open(&bars).is_ok());
         let lines = dir.path().join("lines.png");
         let series = [PlotSeries {
