@@ -8,7 +8,8 @@ use clap::Args;
 
 use super::{extract_with_progress, feature_config, output_sink, progress_bar, read_dataset};
 use evitrack::estimator::{
-    missing_penalty, DatasetFeatures, Evidential, EvidentialSettings, PoseEstimator, TrainingSet,
+    self, missing_penalty, DatasetFeatures, Evidential, EvidentialSettings, PoseEstimator,
+    TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
@@ -37,6 +38,14 @@ struct TrackOptions {
 }
 
 impl TrackOptions {
+    /// Whether any option was given.
+    fn given(&self) -> bool {
+        self.constructor.is_some()
+            || self.threshold.is_some()
+            || self.selection.is_some()
+            || self.estimator.is_some()
+    }
+
     /// `base` with the options given replacing its values.
     fn apply(&self, base: &TrackSettings) -> Result<TrackSettings> {
         let mut settings = base.clone();
@@ -299,10 +308,22 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
 }
 
 pub fn track(args: &TrackArgs) -> Result<ExitCode> {
-    let evidential = Evidential::load(&args.model)
+    let loaded = estimator::load(&args.model)
         .with_context(|| format!("loading the model {}", args.model.display()))?;
-    let estimator =
-        evidential.with_track_settings(args.track.apply(evidential.model().track_settings())?)?;
+    let estimator: Box<dyn PoseEstimator> = if args.track.given() {
+        let evidential = loaded.as_evidential().with_context(|| {
+            format!(
+                "{} is a `{}` model: --constructor, --threshold, --selection and --estimator \
+                 apply to evidential models only",
+                args.model.display(),
+                loaded.method()
+            )
+        })?;
+        let settings = args.track.apply(evidential.model().track_settings())?;
+        Box::new(evidential.with_track_settings(settings)?)
+    } else {
+        loaded
+    };
     let config = estimator.feature_config().cloned().with_context(|| {
         format!(
             "{} records no feature configuration, so its features cannot be extracted here",

@@ -9,7 +9,7 @@ use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 
 use super::{fmt_mm, load_scenarios};
 use evitrack::experiment::{self, Workbench};
-use evitrack::report::{self, write_run, RunSummary, Table};
+use evitrack::report::{self, write_run, EvidentialSummary, MethodSummary, RunSummary, Table};
 use evitrack::scenario::ScenarioSet;
 
 #[derive(Debug, Args)]
@@ -58,6 +58,19 @@ pub struct MergeArgs {
     check: bool,
 }
 
+/// The run's evidential model, on the evidential method's row only.
+fn evidential_of<'a>(s: &'a RunSummary, m: &MethodSummary) -> Option<&'a EvidentialSummary> {
+    s.evidential.as_ref().filter(|_| m.method == "evidential")
+}
+
+/// The evidential model's state counts joined by `sep` (empty on other rows).
+fn states_text(evidential: Option<&EvidentialSummary>, sep: &str) -> String {
+    evidential.map_or(String::new(), |e| {
+        let states: Vec<String> = e.states.iter().map(usize::to_string).collect();
+        states.join(sep)
+    })
+}
+
 /// One row per variant and method: the evidential model's states and constructor, then each
 /// method's errors (the paper's figure beside the evidential row).
 fn error_table(summaries: &[&RunSummary]) -> Table {
@@ -77,11 +90,8 @@ fn error_table(summaries: &[&RunSummary]) -> Table {
     ]);
     for s in summaries {
         for m in &s.methods {
-            let evidential = s.evidential.as_ref().filter(|_| m.method == "evidential");
-            let states = evidential.map_or(String::new(), |e| {
-                let states: Vec<String> = e.states.iter().map(usize::to_string).collect();
-                states.join(",")
-            });
+            let evidential = evidential_of(s, m);
+            let states = states_text(evidential, ",");
             table.push([
                 s.scenario.clone(),
                 m.method.clone(),
@@ -298,11 +308,8 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     for s in summaries {
         for m in &s.methods {
-            let evidential = s.evidential.as_ref().filter(|_| m.method == "evidential");
-            let states = evidential.map_or(String::new(), |e| {
-                let states: Vec<String> = e.states.iter().map(usize::to_string).collect();
-                states.join(" ")
-            });
+            let evidential = evidential_of(s, m);
+            let states = states_text(evidential, " ");
             let expected = match evidential {
                 Some(_) => s.expect.max_mean_error,
                 None => s

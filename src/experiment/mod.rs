@@ -20,13 +20,14 @@ use std::time::Instant;
 use crate::estimator::{
     EstimatorError, EstimatorSettings, EvidentialSettings, Labelled, PoseEstimator, TrainingSet,
 };
+use crate::features::FeatureRows;
 use crate::model::Provenance;
 use crate::report::{
     ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, RunSummary, Timings,
 };
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
-use crate::sim::{SimError, SimSettings};
+use crate::sim::{Motion, SimError, SimSettings};
 
 /// Failures while running a scenario.
 #[derive(Debug, thiserror::Error)]
@@ -102,17 +103,10 @@ pub fn run(
     // Validation data, for tuning by validation error, the fallback ranking and the threshold.
     let validation = match &s.validation {
         Some(motion) => {
-            let clock = Instant::now();
-            let vseed = seed::for_part(master, ScenarioPart::Validation);
-            let data =
-                bench.dataset(sim, motion, vseed, &mut |d, t| progress("validation", d, t))?;
-            timings.simulate += clock.elapsed().as_secs_f64();
-            let clock = Instant::now();
-            let rows = bench.features(sim, motion, vseed, &s.features, set, &mut |_, _| {})?;
-            timings.features += clock.elapsed().as_secs_f64();
-            let truth = data
-                .truth_positions()
-                .ok_or_else(|| ExperimentError::NoTruth("the validation motion".into()))?;
+            let seed = seed::for_part(master, ScenarioPart::Validation);
+            let what = "the validation motion";
+            let (truth, _, rows) =
+                labelled_motion(scenario, bench, motion, seed, what, progress, &mut timings)?;
             Some((truth, rows))
         }
         None => None,
@@ -122,17 +116,16 @@ pub fn run(
     let mut tests = Vec::with_capacity(s.tests.len());
     for (k, motion) in s.tests.iter().enumerate() {
         let label = format!("test{k}:{}", motion.name());
-        let clock = Instant::now();
-        let tseed = seed::for_part(master, ScenarioPart::Test(k));
-        let data = bench.dataset(sim, motion, tseed, &mut |d, t| progress(&label, d, t))?;
-        timings.simulate += clock.elapsed().as_secs_f64();
-        let clock = Instant::now();
-        let rows = bench.features(sim, motion, tseed, &s.features, set, &mut |_, _| {})?;
-        timings.features += clock.elapsed().as_secs_f64();
-        let truth = data
-            .truth_positions()
-            .ok_or_else(|| ExperimentError::NoTruth(label.clone()))?;
-        let times: Vec<f64> = data.frames.iter().map(|f| f.t).collect();
+        let seed = seed::for_part(master, ScenarioPart::Test(k));
+        let (truth, times, rows) = labelled_motion(
+            scenario,
+            bench,
+            motion,
+            seed,
+            &label,
+            progress,
+            &mut timings,
+        )?;
         tests.push((label, truth, times, rows));
     }
 
@@ -235,6 +228,38 @@ pub fn run(
         samples: sample.poses,
         sample_rounds: sample.rounds,
     })
+}
+
+/// Ground truth, frame times and feature rows of one of the scenario's motions (simulated and
+/// extracted once per workbench); `label` names it in progress and errors.
+fn labelled_motion(
+    scenario: &CheckedScenario,
+    bench: &Workbench,
+    motion: &Motion,
+    seed: u64,
+    label: &str,
+    progress: Progress<'_>,
+    timings: &mut Timings,
+) -> Result<(Vec<[f64; 2]>, Vec<f64>, Arc<FeatureRows>), ExperimentError> {
+    let s = scenario.get();
+    let clock = Instant::now();
+    let data = bench.dataset(&s.sim, motion, seed, &mut |d, t| progress(label, d, t))?;
+    timings.simulate += clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    let rows = bench.features(
+        &s.sim,
+        motion,
+        seed,
+        &s.features,
+        scenario.feature_set(),
+        &mut |_, _| {},
+    )?;
+    timings.features += clock.elapsed().as_secs_f64();
+    let truth = data
+        .truth_positions()
+        .ok_or_else(|| ExperimentError::NoTruth(label.to_string()))?;
+    let times = data.frames.iter().map(|f| f.t).collect();
+    Ok((truth, times, rows))
 }
 
 /// Runs several scenarios on `jobs` threads sharing one workbench; results come back in input
