@@ -13,7 +13,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
-use crate::estimator::Method;
+use crate::estimator::{GpSettings, KnnSettings, Method};
 use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
 use crate::seed;
@@ -137,6 +137,10 @@ pub struct Scenario {
     pub learn_threshold: bool,
     /// The estimation methods to fit and compare, in table order (default: every method).
     pub estimators: Vec<Method>,
+    /// k-nearest neighbours' settings (`[knn]`).
+    pub knn: KnnSettings,
+    /// The Gaussian process's settings (`[gp]`).
+    pub gp: GpSettings,
     /// Regression expectations.
     pub expect: Expectations,
     /// The paper's figure for this setup, printed beside ours.
@@ -165,6 +169,8 @@ impl Default for Scenario {
             track: TrackSettings::default(),
             learn_threshold: false,
             estimators: Method::ALL.to_vec(),
+            knn: KnnSettings::default(),
+            gp: GpSettings::default(),
             expect: Expectations::default(),
             paper_error: None,
             sweep: Sweep::default(),

@@ -87,19 +87,25 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         args.extend(["--variant", v]);
     }
     ok(evitrack(&args));
-    let estimates = dir.join(format!("est-{label}.csv"));
-    ok(evitrack(&[
-        "track",
-        test.to_str().unwrap(),
-        "--model",
-        run_dir.join("model.json").to_str().unwrap(),
-        "--out",
-        estimates.to_str().unwrap(),
-    ]));
-    let tracked = rows_without_label(&estimates, "evidential");
-    let ran = rows_without_label(&run_dir.join("frames.csv"), "evidential");
-    assert_eq!(tracked.len(), 20);
-    assert_eq!(tracked, ran, "{label}: track and run disagree");
+    for method in ["evidential", "knn", "gp", "centre"] {
+        let model = match method {
+            "evidential" => run_dir.join("model.json"),
+            other => run_dir.join(format!("model-{other}.json")),
+        };
+        let estimates = dir.join(format!("est-{label}-{method}.csv"));
+        ok(evitrack(&[
+            "track",
+            test.to_str().unwrap(),
+            "--model",
+            model.to_str().unwrap(),
+            "--out",
+            estimates.to_str().unwrap(),
+        ]));
+        let tracked = rows_without_label(&estimates, method);
+        let ran = rows_without_label(&run_dir.join("frames.csv"), method);
+        assert_eq!(tracked.len(), 20);
+        assert_eq!(tracked, ran, "{label}, {method}: track and run disagree");
+    }
 }
 
 #[test]
@@ -330,4 +336,82 @@ fn too_many_features_are_refused_before_anything_runs() {
     );
     // Refused by the check: nothing was simulated or written.
     assert!(!dir.path().join("wide").exists());
+}
+
+#[test]
+fn every_method_trains_and_tracks_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    ok(evitrack(&[
+        "simulate",
+        "--out",
+        &path("sample"),
+        "--motion",
+        r#"kind = "mesh", spacing = 2.0"#,
+    ]));
+    ok(evitrack(&[
+        "simulate",
+        "--out",
+        &path("test"),
+        "--seed",
+        "4",
+        "--motion",
+        r#"kind = "circle", radius = 5, speed = 10, duration = 2, fps = 10"#,
+    ]));
+    let mut means = Vec::new();
+    for method in ["knn", "gp", "centre"] {
+        let model = path(&format!("{method}.json"));
+        ok(evitrack(&[
+            "train",
+            &path("sample"),
+            "--out",
+            &model,
+            "--barycentre",
+            "--method",
+            method,
+        ]));
+        let text = std::fs::read_to_string(&model).unwrap();
+        let file: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(file["method"], method);
+        let out = ok(evitrack(&["track", &path("test"), "--model", &model]));
+        let csv = String::from_utf8_lossy(&out.stdout).to_string();
+        assert_eq!(csv.lines().count(), 21, "{csv}");
+        assert!(csv.lines().skip(1).all(|l| l.starts_with(method)), "{csv}");
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        let mean: f64 = stderr
+            .split("error mean ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|m| m.parse().ok())
+            .unwrap_or_else(|| panic!("no mean error in {stderr}"));
+        means.push(mean);
+        // Tracker options belong to evidential models.
+        let bad = evitrack(&[
+            "track",
+            &path("test"),
+            "--model",
+            &model,
+            "--constructor",
+            "consonant",
+        ]);
+        assert_eq!(bad.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&bad.stderr).contains("evidential models only"));
+    }
+    // On the 2 mm mesh with 8 features: the regressors beat knowing nothing by far.
+    assert!(
+        means[0] < 1.0 && means[1] < 1.0 && means[2] > 3.0,
+        "{means:?}"
+    );
+    let bad = evitrack(&[
+        "train",
+        &path("sample"),
+        "--out",
+        &path("x.json"),
+        "--method",
+        "knn",
+        "--states",
+        "3",
+    ]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--method evidential only"));
 }

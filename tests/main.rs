@@ -1,6 +1,7 @@
 //! Integration tests: one binary, one module per room.
 
 mod adaptive;
+mod baselines;
 mod cli;
 mod dataset;
 mod evidence;

@@ -8,8 +8,8 @@ use clap::Args;
 
 use super::{extract_with_progress, feature_config, output_sink, progress_bar, read_dataset};
 use evitrack::estimator::{
-    self, missing_penalty, DatasetFeatures, Evidential, EvidentialSettings, PoseEstimator,
-    TrainingSet,
+    self, missing_penalty, DatasetFeatures, EstimatorSettings, Evidential, EvidentialSettings,
+    KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
@@ -113,8 +113,49 @@ pub struct TrainArgs {
     /// Seed of the EM initialisations.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// The estimation method. --states, --tune-bic, --keep-threshold and the tracker options
+    /// are the evidential tracker's; --k and --weights are k-NN's.
+    #[arg(long, value_enum, default_value = "evidential")]
+    method: MethodArg,
+    /// k-NN: the number of neighbours.
+    #[arg(long, default_value_t = KnnSettings::default().k)]
+    k: usize,
+    /// k-NN: how the neighbours' poses are weighted.
+    #[arg(long, value_enum, default_value = "distance")]
+    weights: WeightsArg,
     #[command(flatten)]
     track: TrackOptions,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum MethodArg {
+    /// The paper's evidential tracker.
+    Evidential,
+    /// k-nearest neighbours on standardised features.
+    Knn,
+    /// Gaussian-process regression (ARD kernel, marginal-likelihood hyperparameters).
+    Gp,
+    /// The workspace centre: the error of knowing nothing.
+    Centre,
+}
+
+impl MethodArg {
+    fn method(self) -> Method {
+        match self {
+            MethodArg::Evidential => Method::Evidential,
+            MethodArg::Knn => Method::Knn,
+            MethodArg::Gp => Method::Gp,
+            MethodArg::Centre => Method::Centre,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum WeightsArg {
+    /// Every neighbour counts the same.
+    Uniform,
+    /// Neighbours count as 1 / distance.
+    Distance,
 }
 
 /// Arguments of `track`.
@@ -218,6 +259,46 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         }
         None => None,
     };
+    let training = TrainingSet {
+        feature_names: &names,
+        feature_config: Some(&config),
+        sample: sample.labelled(),
+        validation: validation.as_ref().map(DatasetFeatures::labelled),
+        missing_penalty: missing_penalty(&dataset),
+        provenance: Provenance::new(None, args.seed),
+    };
+    if args.method != MethodArg::Evidential {
+        if args.states.is_some()
+            || args.tune_bic.is_some()
+            || args.keep_threshold
+            || args.track.given()
+        {
+            bail!(
+                "--states, --tune-bic, --keep-threshold and the tracker options apply to \
+                 --method evidential only"
+            );
+        }
+        let settings = EstimatorSettings {
+            knn: KnnSettings {
+                k: args.k,
+                weights: match args.weights {
+                    WeightsArg::Uniform => KnnWeights::Uniform,
+                    WeightsArg::Distance => KnnWeights::Distance,
+                },
+            },
+            ..EstimatorSettings::default()
+        };
+        let estimator = args.method.method().fit(&settings, &training)?;
+        std::fs::write(&args.out, estimator.to_json()?)
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        eprintln!(
+            "trained `{}` on {} sample poses; model written to {}",
+            estimator.method(),
+            sample.poses.len(),
+            args.out.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
     let states = match &args.states {
         Some(text) => parse_counts(text, "--states")?,
         None => StateCounts::PerFeature(
@@ -245,14 +326,6 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         model,
         track: args.track.apply(&TrackSettings::default())?,
         learn_threshold: validation.is_some() && !args.keep_threshold,
-    };
-    let training = TrainingSet {
-        feature_names: &names,
-        feature_config: Some(&config),
-        sample: sample.labelled(),
-        validation: validation.as_ref().map(DatasetFeatures::labelled),
-        missing_penalty: missing_penalty(&dataset),
-        provenance: Provenance::new(None, args.seed),
     };
     let estimator = Evidential::fit(&settings, &training)?;
     std::fs::write(&args.out, estimator.to_json()?)

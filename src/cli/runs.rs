@@ -358,7 +358,11 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
         })
         .collect();
     let labels: Vec<String> = summaries.iter().map(|s| s.scenario.clone()).collect();
-    let paper: Vec<Option<f64>> = summaries.iter().map(|s| s.paper_error).collect();
+    // The paper's figures are the evidential tracker's.
+    let paper: Vec<Option<f64>> = summaries
+        .iter()
+        .map(|s| s.paper_error.filter(|_| s.evidential.is_some()))
+        .collect();
     let has_paper = paper.iter().any(Option::is_some);
     let any_error = series.iter().any(|s| s.values.iter().any(Option::is_some));
     if any_error {

@@ -7,9 +7,15 @@
 //! implementation. A fitted estimator is self-contained: [`PoseEstimator::to_json`] writes a
 //! model file that [`load`] reads back into an estimator giving the same estimates.
 
+mod centre;
 mod evidential;
+mod gp;
+mod knn;
 
+pub use centre::{Centre, CentreSettings};
 pub use evidential::{Evidential, EvidentialSettings};
+pub use gp::{Gp, GpHyperparameters, GpSettings};
+pub use knn::{Knn, KnnSettings, KnnWeights};
 
 use std::path::Path;
 
@@ -66,16 +72,25 @@ pub enum EstimatorError {
 pub enum Method {
     /// The paper's evidential tracker ([`Evidential`]).
     Evidential,
+    /// k-nearest neighbours in standardised feature space ([`Knn`]).
+    Knn,
+    /// Gaussian-process regression with an ARD kernel ([`Gp`]).
+    Gp,
+    /// The workspace centre, whatever the frame ([`Centre`]): the error of knowing nothing.
+    Centre,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: [Method; 1] = [Method::Evidential];
+    pub const ALL: [Method; 4] = [Method::Evidential, Method::Knn, Method::Gp, Method::Centre];
 
     /// The name scenario and model files use.
     pub fn name(self) -> &'static str {
         match self {
             Method::Evidential => "evidential",
+            Method::Knn => "knn",
+            Method::Gp => "gp",
+            Method::Centre => "centre",
         }
     }
 }
@@ -176,6 +191,10 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
 pub struct EstimatorSettings {
     /// The evidential tracker's.
     pub evidential: EvidentialSettings,
+    /// k-nearest neighbours'.
+    pub knn: KnnSettings,
+    /// The Gaussian process's.
+    pub gp: GpSettings,
 }
 
 impl Method {
@@ -190,6 +209,9 @@ impl Method {
     ) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         Ok(match self {
             Method::Evidential => Box::new(Evidential::fit(&settings.evidential, data)?),
+            Method::Knn => Box::new(Knn::fit(&settings.knn, data)?),
+            Method::Gp => Box::new(Gp::fit(&settings.gp, data)?),
+            Method::Centre => Box::new(Centre::fit(&CentreSettings::default(), data)?),
         })
     }
 }
@@ -308,11 +330,37 @@ fn bounding_diagonal(poses: &[[f64; 2]]) -> f64 {
 }
 
 /// Reads a model file written by any estimator's [`PoseEstimator::to_json`] and returns the
-/// estimator it describes.
+/// estimator it describes: its `method` field picks the reader (`evidential` when absent, so that
+/// old evidential files are named as such).
 ///
 /// # Errors
 /// [`EstimatorError::Io`] when the file cannot be read; [`EstimatorError::Model`] naming the
 /// path and what is wrong (format version, method, a field) otherwise.
 pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
-    Ok(Box::new(Evidential::load(path)?))
+    let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    let method = serde_json::from_str::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|v| v.get("method")?.as_str().map(String::from));
+    Ok(match method.as_deref() {
+        Some(Knn::METHOD) => Box::new(Knn::load(path)?),
+        Some(Gp::METHOD) => Box::new(Gp::load(path)?),
+        Some(Centre::METHOD) => Box::new(Centre::load(path)?),
+        Some(crate::model::METHOD) | None => Box::new(Evidential::load(path)?),
+        Some(other) => {
+            return Err(ModelError::File {
+                path: path.to_path_buf(),
+                source: Box::new(ModelError::Corrupted(format!(
+                "unknown method `{other}`: this build reads `{}`, `{}`, `{}` and `{}` model files",
+                crate::model::METHOD,
+                Knn::METHOD,
+                Gp::METHOD,
+                Centre::METHOD
+            ))),
+            }
+            .into())
+        }
+    })
 }

@@ -140,6 +140,8 @@ pub fn run(
             track: s.track.clone(),
             learn_threshold: s.learn_threshold,
         },
+        knn: s.knn.clone(),
+        gp: s.gp.clone(),
     };
     let training = TrainingSet {
         feature_names: &names,

@@ -280,7 +280,15 @@ pub fn plot_errors_by_variant(
         .disable_x_mesh()
         .x_labels(n.max(2) * 2 + 1)
         .x_label_formatter(&label_of)
-        .y_label_formatter(&|v: &f64| format!("{}", 10f64.powf(*v)))
+        // Label whole decades only: 0.01, 0.1, 1, 10.
+        .y_label_formatter(&|v: &f64| {
+            if (v - v.round()).abs() < 1e-6 {
+                let decade = v.round() as i32;
+                format!("{}", 10f64.powi(decade))
+            } else {
+                String::new()
+            }
+        })
         .y_desc("mean error (mm, log scale)")
         .label_style((FONT, 15))
         .axis_desc_style((FONT, 17))

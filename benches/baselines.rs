@@ -1,0 +1,135 @@
+//! The baseline estimators on 8 smooth synthetic features of the pose (plus a little noise):
+//! fitting on 400 (20 × 20 mesh) and 1,521 (39 × 39) samples over [−9.5, 9.5] × [38, 57] mm,
+//! and one frame's estimate; k-NN also per frame on 10,000 samples (100 × 100), where a k-d tree
+//! would start to matter.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use evitrack::estimator::{
+    Centre, CentreSettings, Gp, GpSettings, Knn, KnnSettings, Labelled, PoseEstimator, TrainingSet,
+};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use std::hint::black_box;
+use std::time::Duration;
+
+/// 8 smooth features of the pose, each with noise of standard deviation 0.01.
+fn features(p: [f64; 2], rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
+    let noise = Normal::new(0.0, 0.01).expect("valid");
+    let (x, y) = (p[0] / 9.5, (p[1] - 47.5) / 9.5);
+    (0..8)
+        .map(|f| {
+            let a = 0.5 + f as f64 * 0.37;
+            let v = (a * x + (1.0 - a) * y).sin() + (0.7 * a * x * y).cos() + 0.3 * a * y;
+            Some(v + noise.sample(rng))
+        })
+        .collect()
+}
+
+/// A `side` × `side` mesh in serpentine order and its features.
+struct Samples {
+    names: Vec<String>,
+    poses: Vec<[f64; 2]>,
+    rows: Vec<Vec<Option<f64>>>,
+}
+
+impl Samples {
+    fn mesh(side: usize) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let step = 19.0 / (side - 1) as f64;
+        let poses: Vec<[f64; 2]> = (0..side * side)
+            .map(|i| {
+                let (r, c) = (i / side, i % side);
+                let c = if r % 2 == 0 { c } else { side - 1 - c };
+                [-9.5 + c as f64 * step, 38.0 + r as f64 * step]
+            })
+            .collect();
+        let rows = poses.iter().map(|&p| features(p, &mut rng)).collect();
+        Self {
+            names: (0..8).map(|i| format!("f{i}")).collect(),
+            poses,
+            rows,
+        }
+    }
+
+    fn training(&self) -> TrainingSet<'_> {
+        TrainingSet::new(
+            &self.names,
+            Labelled {
+                poses: &self.poses,
+                rows: &self.rows,
+            },
+        )
+    }
+}
+
+/// Feature rows of random poses inside the mesh.
+fn frames(n: usize) -> Vec<Vec<Option<f64>>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    (0..n)
+        .map(|_| {
+            let p = [rng.random_range(-9.0..9.0), rng.random_range(38.5..56.5)];
+            features(p, &mut rng)
+        })
+        .collect()
+}
+
+/// Estimates frames in turn, one per iteration.
+fn bench_frames(
+    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    id: BenchmarkId,
+    estimator: &dyn PoseEstimator,
+) {
+    let rows = frames(64);
+    let mut i = 0;
+    group.bench_function(id, |b| {
+        b.iter(|| {
+            i = (i + 1) % rows.len();
+            black_box(estimator.estimate(black_box(&rows[i])).ok())
+        })
+    });
+}
+
+fn fit(c: &mut Criterion) {
+    let mut group = c.benchmark_group("baseline_fit");
+    for side in [20, 39] {
+        let samples = Samples::mesh(side);
+        let n = side * side;
+        let training = samples.training();
+        group.sample_size(10);
+        group.measurement_time(Duration::from_secs(5));
+        group.bench_function(BenchmarkId::new("centre", n), |b| {
+            b.iter(|| Centre::fit(&CentreSettings::default(), black_box(&training)).ok())
+        });
+        group.bench_function(BenchmarkId::new("knn", n), |b| {
+            b.iter(|| Knn::fit(&KnnSettings::default(), black_box(&training)).ok())
+        });
+        group.measurement_time(Duration::from_secs(30));
+        group.bench_function(BenchmarkId::new("gp", n), |b| {
+            b.iter(|| Gp::fit(&GpSettings::default(), black_box(&training)).ok())
+        });
+    }
+    group.finish();
+}
+
+fn estimate(c: &mut Criterion) {
+    let mut group = c.benchmark_group("baseline_frame");
+    for side in [20, 39, 100] {
+        let samples = Samples::mesh(side);
+        let n = side * side;
+        let training = samples.training();
+        let knn = Knn::fit(&KnnSettings::default(), &training).expect("k-NN fits");
+        bench_frames(&mut group, BenchmarkId::new("knn", n), &knn);
+        if n > 2000 {
+            continue;
+        }
+        let centre = Centre::fit(&CentreSettings::default(), &training).expect("centre fits");
+        bench_frames(&mut group, BenchmarkId::new("centre", n), &centre);
+        let gp = Gp::fit(&GpSettings::default(), &training).expect("GP fits");
+        bench_frames(&mut group, BenchmarkId::new("gp", n), &gp);
+    }
+    group.finish();
+}
+
+criterion_group!(benches, fit, estimate);
+criterion_main!(benches);

@@ -1,0 +1,896 @@
+//! The Gaussian-process baseline: regression of the pose on the standardised features with one
+//! ARD squared-exponential kernel shared by both coordinates,
+//! k(x, x′) = σf² exp(−½ Σ_d (x_d − x′_d)²/ℓ_d²) + σn² δ, hyperparameters fitted by maximising
+//! the two coordinates' summed log marginal likelihood (analytic gradients, projected L-BFGS in
+//! log space, deterministic starts) on at most `max_fit_samples` evenly spaced samples, then the
+//! kernel matrix factored once on every sample.
+//!
+//! Behaviour worth knowing: sample rows with a missing or non-finite value are dropped (an error
+//! when none remains); the GP needs every feature, so a frame with any missing feature has no
+//! estimate (flagged in `flags.missing`). `uncertainty_radius` is the radius of the 90 % disc of
+//! an isotropic 2-D Gaussian whose per-axis standard deviation is the RMS over x and y of the
+//! predictive standard deviation (latent variance plus noise), in mm. Fitting costs O(m³) per
+//! optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a frame costs O(n·D) for the mean and
+//! O(n²) for the variance.
+
+use std::path::Path;
+
+use nalgebra::{Cholesky, DMatrix};
+use serde::{Deserialize, Serialize};
+
+use super::centre::{
+    check_features, check_finite, check_training, corrupted, frame_values, load_file, parse_file,
+    write_file,
+};
+use super::knn::{check_samples, kept_samples, Standardisation};
+use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
+use crate::features::FeatureConfig;
+use crate::model::{ModelError, Provenance};
+
+/// Bounds of the log hyperparameters (inputs and outputs are standardised, so these are wide).
+const LOG_LENGTH: (f64, f64) = (-4.605_170_185_988_091, 6.907_755_278_982_137); // 1e-2 ..= 1e3
+const LOG_SIGNAL: (f64, f64) = (-6.907_755_278_982_137, 6.907_755_278_982_137); // 1e-3 ..= 1e3
+/// σn/σf in 1e-6 ..= 10: the floor keeps the kernel matrix positive definite in practice.
+const LOG_NOISE_RATIO: (f64, f64) = (-13.815_510_557_964_274, 2.302_585_092_994_046);
+/// Jitter tried, relative to σf², when the final factorisation fails.
+const JITTERS: [f64; 9] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2];
+/// The 90 % disc of an isotropic 2-D Gaussian has radius σ·√(−2 ln 0.1).
+const DISC_90: f64 = 2.145_966_026_289_347;
+
+/// How the Gaussian-process baseline is fitted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GpSettings {
+    /// At most this many samples (evenly spaced along the trajectory) fit the hyperparameters.
+    pub max_fit_samples: usize,
+    /// Most optimiser iterations per start (0: keep the initial hyperparameters).
+    pub iterations: usize,
+    /// Optimiser starts (at least 1): start s multiplies the initial length scale by 4^±⌈s/2⌉
+    /// (1, ¼, 4, 1/16 …); the best log marginal likelihood wins.
+    pub starts: usize,
+    /// Initial length scale of every standardised feature.
+    pub initial_length_scale: f64,
+    /// Initial noise standard deviation, relative to the standardised outputs (σf starts at 1).
+    pub initial_noise: f64,
+}
+
+impl Default for GpSettings {
+    fn default() -> Self {
+        Self {
+            max_fit_samples: 400,
+            iterations: 200,
+            starts: 2,
+            initial_length_scale: 1.0,
+            initial_noise: 0.1,
+        }
+    }
+}
+
+impl GpSettings {
+    /// Checks the settings.
+    ///
+    /// # Errors
+    /// [`ModelError::Settings`] naming the field (`gp.…`) that is out of range.
+    pub fn check(&self) -> Result<(), EstimatorError> {
+        let bad = |field, reason: &str| {
+            Err(ModelError::Settings {
+                field,
+                reason: reason.into(),
+            }
+            .into())
+        };
+        if self.max_fit_samples == 0 {
+            return bad("gp.max_fit_samples", "must be at least 1");
+        }
+        if self.starts == 0 {
+            return bad("gp.starts", "must be at least 1");
+        }
+        let (lo, hi) = (LOG_LENGTH.0.exp(), LOG_LENGTH.1.exp());
+        if !(self.initial_length_scale >= lo && self.initial_length_scale <= hi) {
+            return bad("gp.initial_length_scale", "must be in 0.01..=1000");
+        }
+        if !(self.initial_noise >= 1e-6 && self.initial_noise <= 10.0) {
+            return bad("gp.initial_noise", "must be in 1e-6..=10");
+        }
+        Ok(())
+    }
+}
+
+/// Fitted kernel hyperparameters, in standardised units (features and pose coordinates scaled
+/// to unit standard deviation on the samples).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GpHyperparameters {
+    /// Length scale ℓ_d of each feature.
+    pub length_scales: Vec<f64>,
+    /// Signal standard deviation σf.
+    pub signal_std: f64,
+    /// Noise standard deviation σn.
+    pub noise_std: f64,
+}
+
+/// The Gaussian-process baseline, fitted (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Gp {
+    feature_names: Vec<String>,
+    feature_config: Option<FeatureConfig>,
+    provenance: Provenance,
+    settings: GpSettings,
+    standardisation: Standardisation,
+    output: Standardisation,
+    hyper: GpHyperparameters,
+    log_marginal_likelihood: f64,
+    sample_poses: Vec<[f64; 2]>,
+    sample_features: Vec<Vec<f64>>,
+    factor: Factor,
+}
+
+/// What prediction needs, recomputed from the stored state by the same operations.
+#[derive(Debug, Clone)]
+struct Factor {
+    /// Standardised sample features divided by the length scales, row-major.
+    inputs: Vec<f64>,
+    /// Lower Cholesky factor of the kernel matrix, row-major n×n.
+    lower: Vec<f64>,
+    /// K⁻¹y for each scaled output, per sample.
+    alpha: Vec<[f64; 2]>,
+    /// σn² plus any jitter the factorisation needed.
+    noise_var: f64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GpFile {
+    format_version: u32,
+    method: String,
+    provenance: Provenance,
+    feature_config: Option<FeatureConfig>,
+    feature_names: Vec<String>,
+    settings: GpSettings,
+    standardisation: Standardisation,
+    /// Centring and scaling of the pose coordinates (x, y).
+    output: Standardisation,
+    hyperparameters: GpHyperparameters,
+    /// On the fit samples, summed over the two coordinates (standardised units).
+    log_marginal_likelihood: f64,
+    sample_poses: Vec<[f64; 2]>,
+    sample_features: Vec<Vec<f64>>,
+}
+
+impl Gp {
+    /// Version of the model file format this build writes and reads.
+    pub const FORMAT_VERSION: u32 = 1;
+    /// The `method` of its model files.
+    pub const METHOD: &'static str = "gp";
+
+    /// Fits on the sample trajectory of `data` (samples with a missing value are dropped).
+    ///
+    /// # Errors
+    /// Invalid settings, an inconsistent training set, no complete sample, or a kernel matrix
+    /// that stays singular even with jitter.
+    pub fn fit(settings: &GpSettings, data: &TrainingSet) -> Result<Self, EstimatorError> {
+        settings.check()?;
+        check_training(data)?;
+        let (poses, rows) = kept_samples(data, "the Gaussian process")?;
+        let dim = data.feature_names.len();
+        let standardisation = Standardisation::fit(&rows, dim);
+        let pose_rows: Vec<Vec<f64>> = poses.iter().map(|p| p.to_vec()).collect();
+        let output = Standardisation::fit(&pose_rows, 2);
+
+        let n = poses.len();
+        let m = n.min(settings.max_fit_samples);
+        let subset: Vec<usize> = (0..m).map(|i| i * n / m).collect();
+        let inputs = standardisation.apply_rows(&rows);
+        let outputs = output.apply_rows(&pose_rows);
+        let objective = Objective::new(&inputs, &outputs, dim, &subset);
+        // One thread per start; the best value wins, ties to the earlier start.
+        let found: Vec<Option<(Vec<f64>, f64)>> = std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..settings.starts)
+                .map(|s| {
+                    let power = s.div_ceil(2) as f64 * if s % 2 == 1 { -1.0 } else { 1.0 };
+                    let mut start =
+                        vec![(settings.initial_length_scale * 4f64.powf(power)).ln(); dim];
+                    start.extend([0.0, settings.initial_noise.ln()]);
+                    let objective = &objective;
+                    scope.spawn(move || minimise(objective, start, settings.iterations))
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().ok().flatten())
+                .collect()
+        });
+        let mut best: Option<(Vec<f64>, f64)> = None;
+        for candidate in found.into_iter().flatten() {
+            if best.as_ref().is_none_or(|b| candidate.1 < b.1) {
+                best = Some(candidate);
+            }
+        }
+        let (theta, value) = best.ok_or_else(|| {
+            EstimatorError::Training(
+                "the Gaussian process's kernel matrix is singular at every start: \
+                 raise gp.initial_noise"
+                    .into(),
+            )
+        })?;
+        let hyper = GpHyperparameters {
+            length_scales: theta[..dim].iter().map(|t| t.exp()).collect(),
+            signal_std: theta[dim].exp(),
+            noise_std: (theta[dim] + theta[dim + 1]).exp(),
+        };
+        Self::assemble(
+            data.feature_names.to_vec(),
+            data.feature_config.cloned(),
+            data.provenance.clone(),
+            settings.clone(),
+            standardisation,
+            output,
+            hyper,
+            -value * m as f64,
+            poses,
+            rows,
+        )
+        .map_err(|reason| EstimatorError::Training(reason))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn assemble(
+        feature_names: Vec<String>,
+        feature_config: Option<FeatureConfig>,
+        provenance: Provenance,
+        settings: GpSettings,
+        standardisation: Standardisation,
+        output: Standardisation,
+        hyper: GpHyperparameters,
+        log_marginal_likelihood: f64,
+        sample_poses: Vec<[f64; 2]>,
+        sample_features: Vec<Vec<f64>>,
+    ) -> Result<Self, String> {
+        let pose_rows: Vec<Vec<f64>> = sample_poses.iter().map(|p| p.to_vec()).collect();
+        let factor = Factor::new(
+            &standardisation.apply_rows(&sample_features),
+            &output.apply_rows(&pose_rows),
+            &hyper,
+        )?;
+        Ok(Self {
+            feature_names,
+            feature_config,
+            provenance,
+            settings,
+            standardisation,
+            output,
+            hyper,
+            log_marginal_likelihood,
+            sample_poses,
+            sample_features,
+            factor,
+        })
+    }
+
+    /// The settings it was fitted with.
+    pub fn settings(&self) -> &GpSettings {
+        &self.settings
+    }
+
+    /// The fitted hyperparameters (standardised units).
+    pub fn hyperparameters(&self) -> &GpHyperparameters {
+        &self.hyper
+    }
+
+    /// The log marginal likelihood the hyperparameters reached on the fit samples (summed over
+    /// x and y, standardised units).
+    pub fn log_marginal_likelihood(&self) -> f64 {
+        self.log_marginal_likelihood
+    }
+
+    /// The samples it regresses on (the complete samples of the training trajectory).
+    pub fn sample_poses(&self) -> &[[f64; 2]] {
+        &self.sample_poses
+    }
+
+    /// Reads a model file's text, checking the header, settings, standardisations,
+    /// hyperparameters and samples, then factors the kernel matrix as fitting did.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Model`] naming what is wrong.
+    pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
+        let file: GpFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let dim = file.feature_names.len();
+        check_features(&file.feature_names, file.feature_config.as_ref())
+            .map_err(|e| corrupted(e.to_string()))?;
+        file.settings
+            .check()
+            .map_err(|e| corrupted(format!("`settings`: {e}")))?;
+        file.standardisation.check(dim, "standardisation")?;
+        file.output.check(2, "output")?;
+        let h = &file.hyperparameters;
+        if h.length_scales.len() != dim {
+            return Err(corrupted(format!(
+                "`hyperparameters.length_scales` has {} values for {dim} features",
+                h.length_scales.len()
+            )));
+        }
+        check_finite("hyperparameters.length_scales", &h.length_scales)?;
+        for (field, v) in [
+            ("hyperparameters.signal_std", h.signal_std),
+            ("hyperparameters.noise_std", h.noise_std),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(corrupted(format!(
+                    "`{field}` is {v}, not a positive number"
+                )));
+            }
+        }
+        if let Some(d) = h.length_scales.iter().position(|&l| l <= 0.0) {
+            return Err(corrupted(format!(
+                "`hyperparameters.length_scales[{d}]` is not positive"
+            )));
+        }
+        check_finite("log_marginal_likelihood", &[file.log_marginal_likelihood])?;
+        check_samples(&file.sample_poses, &file.sample_features, dim)?;
+        Self::assemble(
+            file.feature_names,
+            file.feature_config,
+            file.provenance,
+            file.settings,
+            file.standardisation,
+            file.output,
+            file.hyperparameters,
+            file.log_marginal_likelihood,
+            file.sample_poses,
+            file.sample_features,
+        )
+        .map_err(corrupted)
+    }
+
+    /// Reads a model file written from [`PoseEstimator::to_json`].
+    ///
+    /// # Errors
+    /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::Model`] naming the path
+    /// and what is wrong otherwise.
+    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
+        load_file(path, Self::from_json)
+    }
+
+    /// Predictive mean (mm) and the RMS over x and y of the predictive standard deviation (mm)
+    /// for a complete row of feature values.
+    fn predict(&self, values: &[f64]) -> ([f64; 2], f64) {
+        let f = &self.factor;
+        let h = &self.hyper;
+        let dim = values.len();
+        let query: Vec<f64> = values
+            .iter()
+            .enumerate()
+            .map(|(d, &x)| self.standardisation.apply(d, x) / h.length_scales[d])
+            .collect();
+        let sf2 = h.signal_std * h.signal_std;
+        let kstar: Vec<f64> = f
+            .inputs
+            .chunks_exact(dim)
+            .map(|row| sf2 * (-0.5 * squared_distance(row, &query)).exp())
+            .collect();
+        let mut mean = [0.0; 2];
+        for (k, a) in kstar.iter().zip(&f.alpha) {
+            mean[0] += k * a[0];
+            mean[1] += k * a[1];
+        }
+        // v = L⁻¹k*, by forward substitution on the row-major factor.
+        let n = kstar.len();
+        let mut v = vec![0.0; n];
+        for i in 0..n {
+            let row = &f.lower[i * n..i * n + i];
+            let dot: f64 = row.iter().zip(&v[..i]).map(|(l, x)| l * x).sum();
+            v[i] = (kstar[i] - dot) / f.lower[i * n + i];
+        }
+        let latent = (sf2 - v.iter().map(|x| x * x).sum::<f64>()).max(0.0);
+        let std = (latent + f.noise_var).sqrt();
+        let [sx, sy] = [self.output.scales[0], self.output.scales[1]];
+        let pose = [
+            self.output.means[0] + sx * mean[0],
+            self.output.means[1] + sy * mean[1],
+        ];
+        (pose, std * (0.5 * (sx * sx + sy * sy)).sqrt())
+    }
+}
+
+impl PoseEstimator for Gp {
+    fn method(&self) -> &'static str {
+        Self::METHOD
+    }
+
+    fn feature_names(&self) -> &[String] {
+        &self.feature_names
+    }
+
+    fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.feature_config.as_ref()
+    }
+
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
+        let (values, missing) = frame_values(features, self.feature_names.len())?;
+        let (pose, radius) = if missing.is_empty() {
+            let values: Vec<f64> = values.iter().map(|v| v.unwrap_or(0.0)).collect();
+            let (pose, std) = self.predict(&values);
+            (Some(pose), Some(std * DISC_90))
+        } else {
+            (None, None)
+        };
+        Ok(PoseEstimate {
+            pose,
+            uncertainty_radius: radius,
+            group: None,
+            conflict_level: None,
+            flags: EstimateFlags {
+                missing,
+                ..EstimateFlags::default()
+            },
+        })
+    }
+
+    fn to_json(&self) -> Result<String, EstimatorError> {
+        write_file(&GpFile {
+            format_version: Self::FORMAT_VERSION,
+            method: Self::METHOD.to_string(),
+            provenance: self.provenance.clone(),
+            feature_config: self.feature_config.clone(),
+            feature_names: self.feature_names.clone(),
+            settings: self.settings.clone(),
+            standardisation: self.standardisation.clone(),
+            output: self.output.clone(),
+            hyperparameters: self.hyper.clone(),
+            log_marginal_likelihood: self.log_marginal_likelihood,
+            sample_poses: self.sample_poses.clone(),
+            sample_features: self.sample_features.clone(),
+        })
+    }
+}
+
+fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+impl Factor {
+    /// Factors the kernel matrix of standardised `inputs` (row-major) and solves for the two
+    /// scaled `outputs` (row-major, 2 per sample), adding jitter if the factorisation fails.
+    fn new(inputs: &[f64], outputs: &[f64], hyper: &GpHyperparameters) -> Result<Self, String> {
+        let dim = hyper.length_scales.len();
+        let inputs: Vec<f64> = inputs
+            .chunks_exact(dim)
+            .flat_map(|row| row.iter().zip(&hyper.length_scales).map(|(z, l)| z / l))
+            .collect();
+        let n = inputs.len() / dim;
+        let sf2 = hyper.signal_std * hyper.signal_std;
+        let mut kernel = DMatrix::zeros(n, n);
+        for j in 0..n {
+            let b = &inputs[j * dim..(j + 1) * dim];
+            for i in 0..j {
+                let k = sf2 * (-0.5 * squared_distance(&inputs[i * dim..(i + 1) * dim], b)).exp();
+                kernel[(i, j)] = k;
+                kernel[(j, i)] = k;
+            }
+        }
+        let y = DMatrix::from_row_slice(n, 2, outputs);
+        let base = hyper.noise_std * hyper.noise_std;
+        for noise_var in std::iter::once(base).chain(JITTERS.iter().map(|j| base + j * sf2)) {
+            let mut k = kernel.clone();
+            for i in 0..n {
+                k[(i, i)] = sf2 + noise_var;
+            }
+            if let Some(chol) = Cholesky::new(k) {
+                let alpha = chol.solve(&y);
+                let l = chol.l_dirty();
+                let mut lower = vec![0.0; n * n];
+                for i in 0..n {
+                    for j in 0..=i {
+                        lower[i * n + j] = l[(i, j)];
+                    }
+                }
+                return Ok(Self {
+                    inputs,
+                    lower,
+                    alpha: (0..n).map(|i| [alpha[(i, 0)], alpha[(i, 1)]]).collect(),
+                    noise_var,
+                });
+            }
+        }
+        Err(
+            "the Gaussian process's kernel matrix is not positive definite, even with jitter \
+             of 1e-2 σf²"
+                .into(),
+        )
+    }
+}
+
+/// Minus the log marginal likelihood per fit sample, summed over the two outputs, as a function
+/// of θ = (log ℓ_1 … log ℓ_D, log σf, log(σn/σf)) (a ratio, so that every bound is a box).
+struct Objective {
+    m: usize,
+    dim: usize,
+    /// (z_i,d − z_j,d)² for each pair i < j (j-major), then each d.
+    diffs: Vec<f64>,
+    /// Scaled outputs of the fit samples (m × 2).
+    y: DMatrix<f64>,
+}
+
+impl Objective {
+    fn new(inputs: &[f64], outputs: &[f64], dim: usize, subset: &[usize]) -> Self {
+        let m = subset.len();
+        let mut diffs = Vec::with_capacity(m * m.saturating_sub(1) / 2 * dim);
+        for j in 0..m {
+            for i in 0..j {
+                let (a, b) = (subset[i] * dim, subset[j] * dim);
+                diffs.extend((0..dim).map(|d| (inputs[a + d] - inputs[b + d]).powi(2)));
+            }
+        }
+        let y = DMatrix::from_fn(m, 2, |i, o| outputs[subset[i] * 2 + o]);
+        Self { m, dim, diffs, y }
+    }
+
+    /// Value and gradient at θ; `None` where the kernel matrix is not positive definite.
+    fn eval(&self, theta: &[f64]) -> Option<(f64, Vec<f64>)> {
+        let (m, dim) = (self.m, self.dim);
+        let inv_l2: Vec<f64> = theta[..dim].iter().map(|t| (-2.0 * t).exp()).collect();
+        let sf2 = (2.0 * theta[dim]).exp();
+        let sn2 = (2.0 * (theta[dim] + theta[dim + 1])).exp();
+        let mut kernel = DMatrix::zeros(m, m);
+        let mut kf = Vec::with_capacity(self.diffs.len() / dim.max(1));
+        let mut pairs = self.diffs.chunks_exact(dim);
+        for j in 0..m {
+            for i in 0..j {
+                let diff = pairs.next()?;
+                let r2: f64 = diff.iter().zip(&inv_l2).map(|(a, b)| a * b).sum();
+                let k = sf2 * (-0.5 * r2).exp();
+                kernel[(i, j)] = k;
+                kernel[(j, i)] = k;
+                kf.push(k);
+            }
+            kernel[(j, j)] = sf2 + sn2;
+        }
+        let chol = Cholesky::new(kernel)?;
+        let alpha = chol.solve(&self.y);
+        let log_det: f64 = 2.0 * (0..m).map(|i| chol.l_dirty()[(i, i)].ln()).sum::<f64>();
+        let fit: f64 = self.y.iter().zip(alpha.iter()).map(|(a, b)| a * b).sum();
+        let lml = -0.5 * fit - log_det - m as f64 * (2.0 * std::f64::consts::PI).ln();
+        // W = Σ_o α_o α_oᵀ − 2K⁻¹; ∂L/∂θ = ½ tr(W ∂K/∂θ).
+        let inverse = upper_inverse(chol.l_dirty());
+        // Only i ≤ j is read: the upper triangle of K⁻¹, column-major.
+        let w = |i: usize, j: usize| {
+            alpha[(i, 0)] * alpha[(j, 0)] + alpha[(i, 1)] * alpha[(j, 1)] - 2.0 * inverse[i + j * m]
+        };
+        let mut grad = vec![0.0; dim + 2];
+        let mut p = 0;
+        let mut off_diagonal = 0.0;
+        for j in 0..m {
+            for i in 0..j {
+                let wk = w(i, j) * kf[p];
+                off_diagonal += wk;
+                for (g, (diff, il)) in grad[..dim]
+                    .iter_mut()
+                    .zip(self.diffs[p * dim..(p + 1) * dim].iter().zip(&inv_l2))
+                {
+                    *g += wk * diff * il;
+                }
+                p += 1;
+            }
+        }
+        let trace: f64 = (0..m).map(|i| w(i, i)).sum();
+        // σn = σf·ratio, so log σf moves σn too.
+        grad[dim + 1] = 0.9 * sn2 * trace;
+        grad[dim] = 2.0 * off_diagonal + sf2 * trace + grad[dim + 1];
+        let scale = -1.0 / m as f64;
+        let value = scale * lml;
+        let grad: Vec<f64> = grad.iter().map(|g| scale * g).collect();
+        (value.is_finite() && grad.iter().all(|g| g.is_finite())).then_some((value, grad))
+    }
+}
+
+/// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
+/// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
+/// time so that each loaded value serves four sums (several times faster than solving against
+/// the identity).
+fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
+    let n = l.nrows();
+    let l = l.as_slice();
+    let width = n.div_ceil(4) * 4;
+    // Columns of M = L⁻¹ (lower) by forward substitution, padded with zero columns to a
+    // multiple of 4. Column j starts as e_j; its rows above j stay exactly 0 throughout.
+    let mut m = vec![0.0; n * width];
+    for (b, block) in m.chunks_exact_mut(4 * n).enumerate() {
+        let j0 = 4 * b;
+        for c in 0..4 {
+            if j0 + c < n {
+                block[c * n + j0 + c] = 1.0;
+            }
+        }
+        let (x0, rest) = block.split_at_mut(n);
+        let (x1, rest) = rest.split_at_mut(n);
+        let (x2, x3) = rest.split_at_mut(n);
+        for k in j0..n {
+            let d = l[k + k * n];
+            let a = [x0[k] / d, x1[k] / d, x2[k] / d, x3[k] / d];
+            [x0[k], x1[k], x2[k], x3[k]] = a;
+            let column = &l[k * n + k + 1..(k + 1) * n];
+            let rows = x0[k + 1..]
+                .iter_mut()
+                .zip(x1[k + 1..].iter_mut())
+                .zip(x2[k + 1..].iter_mut().zip(x3[k + 1..].iter_mut()));
+            for (((y0, y1), (y2, y3)), lik) in rows.zip(column) {
+                *y0 -= a[0] * lik;
+                *y1 -= a[1] * lik;
+                *y2 -= a[2] * lik;
+                *y3 -= a[3] * lik;
+            }
+        }
+    }
+    // (K⁻¹)_ij = Σ_k M_ki M_kj, over k ≥ j0 for the block of j0 (the rest is exactly 0).
+    let mut inverse = vec![0.0; n * n];
+    for j0 in (0..n).step_by(4) {
+        let block = &m[j0 * n..(j0 + 4) * n];
+        let columns: [&[f64]; 4] = std::array::from_fn(|c| &block[c * n + j0..(c + 1) * n]);
+        for i in 0..(j0 + 4).min(n) {
+            let mi = &m[i * n + j0..(i + 1) * n];
+            // Two running sums per column (even and odd k) for instruction-level parallelism.
+            let mut even = [0.0; 4];
+            let mut odd = [0.0; 4];
+            let pairs = mi.chunks_exact(2);
+            let last = pairs.remainder().first().copied();
+            for (p, v) in pairs.enumerate() {
+                let k = 2 * p;
+                for c in 0..4 {
+                    even[c] += v[0] * columns[c][k];
+                    odd[c] += v[1] * columns[c][k + 1];
+                }
+            }
+            let mut sums = [0.0; 4];
+            for c in 0..4 {
+                sums[c] = even[c] + odd[c] + last.map_or(0.0, |v| v * columns[c][mi.len() - 1]);
+            }
+            for (c, sum) in sums.iter().enumerate() {
+                if j0 + c < n && i <= j0 + c {
+                    inverse[i + (j0 + c) * n] = *sum;
+                }
+            }
+        }
+    }
+    inverse
+}
+
+/// The box of θ: each log ℓ, log σf, and log(σn/σf).
+fn bounds(dim: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut lower = vec![LOG_LENGTH.0; dim];
+    let mut upper = vec![LOG_LENGTH.1; dim];
+    lower.extend([LOG_SIGNAL.0, LOG_NOISE_RATIO.0]);
+    upper.extend([LOG_SIGNAL.1, LOG_NOISE_RATIO.1]);
+    (lower, upper)
+}
+
+/// Clamps θ into its box.
+fn project(theta: &mut [f64], lower: &[f64], upper: &[f64]) {
+    for ((t, lo), hi) in theta.iter_mut().zip(lower).zip(upper) {
+        *t = t.clamp(*lo, *hi);
+    }
+}
+
+/// Box-constrained L-BFGS (memory 8): coordinates at a bound that the gradient pushes outwards
+/// are held, the quasi-Newton direction is taken on the others (the memory restarts when that
+/// set changes), and a backtracking Armijo search runs along the projected path. Deterministic.
+/// Returns the final point and value, or `None` when the start is infeasible.
+fn minimise(objective: &Objective, start: Vec<f64>, iterations: usize) -> Option<(Vec<f64>, f64)> {
+    const MEMORY: usize = 8;
+    let (lower, upper) = bounds(start.len() - 2);
+    let mut x = start;
+    project(&mut x, &lower, &upper);
+    let (mut f, mut g) = objective.eval(&x)?;
+    let mut history: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
+    let mut held: Vec<bool> = Vec::new();
+    let mut stalled = 0;
+    for _ in 0..iterations {
+        let now_held: Vec<bool> = (0..x.len())
+            .map(|k| (x[k] <= lower[k] && g[k] > 0.0) || (x[k] >= upper[k] && g[k] < 0.0))
+            .collect();
+        if now_held != held {
+            history.clear();
+            held = now_held;
+        }
+        let free: Vec<f64> = g
+            .iter()
+            .zip(&held)
+            .map(|(v, &h)| if h { 0.0 } else { *v })
+            .collect();
+        if free.iter().all(|v| v.abs() < 1e-7) {
+            break;
+        }
+        let mut direction = lbfgs_direction(&history, &free);
+        direction
+            .iter_mut()
+            .zip(&held)
+            .for_each(|(d, &h)| *d = if h { 0.0 } else { *d });
+        let steepest: Vec<f64> = free.iter().map(|v| -v).collect();
+        if dot(&direction, &free) >= 0.0 {
+            history.clear();
+            direction = steepest.clone();
+        }
+        let mut accepted = line_search(objective, &x, f, &g, &direction, &lower, &upper);
+        if accepted.is_none() && !history.is_empty() {
+            history.clear();
+            accepted = line_search(objective, &x, f, &g, &steepest, &lower, &upper);
+        }
+        let Some((trial, ft, gt)) = accepted else {
+            break;
+        };
+        let s: Vec<f64> = trial.iter().zip(&x).map(|(a, b)| a - b).collect();
+        let y: Vec<f64> = gt.iter().zip(&g).map(|(a, b)| a - b).collect();
+        let sy = dot(&s, &y);
+        if sy > 1e-12 * dot(&y, &y).sqrt() * dot(&s, &s).sqrt() {
+            history.push((s, y, 1.0 / sy));
+            if history.len() > MEMORY {
+                history.remove(0);
+            }
+        }
+        let improvement = f - ft;
+        (x, f, g) = (trial, ft, gt);
+        // A single short step is no proof of convergence: wait for three in a row.
+        if improvement <= 1e-9 * f.abs().max(1.0) {
+            stalled += 1;
+            if stalled == 3 {
+                break;
+            }
+        } else {
+            stalled = 0;
+        }
+    }
+    Some((x, f))
+}
+
+/// The two-loop recursion: an approximation of −H⁻¹g from the stored steps; the first step
+/// moves at most 1 along any coordinate.
+fn lbfgs_direction(history: &[(Vec<f64>, Vec<f64>, f64)], g: &[f64]) -> Vec<f64> {
+    let mut q = g.to_vec();
+    let mut coefficients = Vec::with_capacity(history.len());
+    for (s, y, rho) in history.iter().rev() {
+        let a = rho * dot(s, &q);
+        axpy(-a, y, &mut q);
+        coefficients.push(a);
+    }
+    let gamma = match history.last() {
+        Some((s, y, _)) => dot(s, y) / dot(y, y),
+        None => 1.0 / g.iter().fold(1.0f64, |a, v| a.max(v.abs())),
+    };
+    q.iter_mut().for_each(|v| *v *= gamma);
+    for ((s, y, rho), a) in history.iter().zip(coefficients.iter().rev()) {
+        let b = rho * dot(y, &q);
+        axpy(a - b, s, &mut q);
+    }
+    q.iter().map(|v| -v).collect()
+}
+
+/// Backtracking along the projected path from x: the first step (1, ½, ¼ …) with a sufficient
+/// decrease, as (point, value, gradient).
+fn line_search(
+    objective: &Objective,
+    x: &[f64],
+    f: f64,
+    g: &[f64],
+    direction: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+) -> Option<(Vec<f64>, f64, Vec<f64>)> {
+    let mut step = 1.0;
+    for _ in 0..40 {
+        let mut trial: Vec<f64> = x.iter().zip(direction).map(|(a, d)| a + step * d).collect();
+        project(&mut trial, lower, upper);
+        let moved: Vec<f64> = trial.iter().zip(x).map(|(a, b)| a - b).collect();
+        let decrease = dot(g, &moved);
+        if decrease >= 0.0 {
+            return None; // the projection left no descent along this direction
+        }
+        if let Some((ft, gt)) = objective.eval(&trial) {
+            if ft <= f + 1e-4 * decrease {
+                return Some((trial, ft, gt));
+            }
+        }
+        step *= 0.5;
+    }
+    None
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn axpy(a: f64, x: &[f64], y: &mut [f64]) {
+    y.iter_mut().zip(x).for_each(|(y, x)| *y += a * x);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small fit problem: a smooth function of 2 features on an 8 × 8 grid, plus noise of
+    /// standard deviation about 0.1 (a fixed pseudo-random sequence), so the optimum is interior.
+    fn objective() -> Objective {
+        let n = 64;
+        let inputs: Vec<f64> = (0..n)
+            .flat_map(|i| [(i % 8) as f64 / 4.0 - 1.0, (i / 8) as f64 / 4.0 - 1.0])
+            .collect();
+        let mut state: u64 = 12345;
+        let mut noise = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.35
+        };
+        let outputs: Vec<f64> = inputs
+            .chunks(2)
+            .flat_map(|x| {
+                [
+                    x[0] * x[1] + 0.5 * x[0] + noise(),
+                    (x[0] - x[1]).sin() + noise(),
+                ]
+            })
+            .collect();
+        Objective::new(&inputs, &outputs, 2, &(0..n).collect::<Vec<_>>())
+    }
+
+    #[test]
+    fn analytic_gradient_matches_finite_differences() {
+        let objective = objective();
+        let theta = [0.3, -0.2, 0.1, -1.5];
+        let (_, grad) = objective.eval(&theta).unwrap();
+        for k in 0..theta.len() {
+            let h = 1e-6;
+            let (mut up, mut down) = (theta, theta);
+            up[k] += h;
+            down[k] -= h;
+            let numeric =
+                (objective.eval(&up).unwrap().0 - objective.eval(&down).unwrap().0) / (2.0 * h);
+            assert!(
+                (numeric - grad[k]).abs() < 1e-6 * (1.0 + numeric.abs()),
+                "θ[{k}]: analytic {} vs numeric {numeric}",
+                grad[k]
+            );
+        }
+    }
+
+    #[test]
+    fn the_optimiser_improves_the_likelihood_and_respects_the_bounds() {
+        let objective = objective();
+        let start = vec![0.0, 0.0, 0.0, (0.1f64).ln()];
+        let (f0, _) = objective.eval(&start).unwrap();
+        let (theta, f) = minimise(&objective, start, 200).unwrap();
+        assert!(f < f0 - 0.01, "{f} vs {f0}");
+        let (lower, upper) = bounds(2);
+        let mut projected = theta.clone();
+        project(&mut projected, &lower, &upper);
+        assert_eq!(projected, theta);
+        assert!(
+            theta[3] > lower[3] + 1.0,
+            "the noise found no interior optimum: {theta:?}"
+        );
+        // At an interior optimum the gradient vanishes on the free coordinates.
+        let (_, grad) = objective.eval(&theta).unwrap();
+        for (k, g) in grad.iter().enumerate() {
+            if theta[k] > lower[k] + 1e-3 && theta[k] < upper[k] - 1e-3 {
+                assert!(g.abs() < 1e-4, "gradient {g} on θ[{k}] at {theta:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_blocked_inverse_matches_solving_against_the_identity() {
+        for n in [1, 2, 3, 4, 5, 7, 8, 33] {
+            let k = DMatrix::from_fn(n, n, |i, j| {
+                (-((i as f64 - j as f64) / 3.0).powi(2)).exp() + if i == j { 0.1 } else { 0.0 }
+            });
+            let chol = Cholesky::new(k).unwrap();
+            let reference = chol.inverse();
+            let upper = upper_inverse(chol.l_dirty());
+            for j in 0..n {
+                for i in 0..=j {
+                    let diff = (reference[(i, j)] - upper[i + j * n]).abs();
+                    assert!(diff < 1e-10, "n {n}, ({i}, {j}): off by {diff}");
+                }
+            }
+        }
+    }
+}

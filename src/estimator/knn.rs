@@ -1,0 +1,448 @@
+//! The k-nearest-neighbours baseline: standardise the features on the sample trajectory, find
+//! the k sample poses whose features are nearest to the frame's, and average them.
+//!
+//! Behaviour worth knowing: sample rows with a missing or non-finite value are dropped (an error
+//! when none remains); a frame's missing features are left out of the distances (the search runs
+//! on the features present, flagged in `flags.missing`); a frame with no feature present has no
+//! estimate. Ties in distance go to the lower sample index. Brute force: O(n·D) per frame.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::centre::{
+    check_features, check_finite, check_training, complete_samples, corrupted, frame_values,
+    load_file, parse_file, write_file,
+};
+use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
+use crate::features::FeatureConfig;
+use crate::model::{ModelError, Provenance};
+
+/// How the neighbours' poses are averaged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KnnWeights {
+    /// Every neighbour counts the same.
+    Uniform,
+    /// Each neighbour weighs 1/d (d its feature distance); when some neighbours are at distance
+    /// 0, only those count, equally.
+    #[default]
+    Distance,
+}
+
+/// How the k-nearest-neighbours baseline is fitted and run.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct KnnSettings {
+    /// Neighbours averaged per frame (at least 1, at most the usable samples).
+    pub k: usize,
+    /// How they are weighted.
+    pub weights: KnnWeights,
+}
+
+impl Default for KnnSettings {
+    fn default() -> Self {
+        Self {
+            k: 6,
+            weights: KnnWeights::Distance,
+        }
+    }
+}
+
+impl KnnSettings {
+    /// Checks the settings on their own (`k` against the samples is checked when fitting).
+    ///
+    /// # Errors
+    /// [`ModelError::Settings`] naming `knn.k` when it is 0.
+    pub fn check(&self) -> Result<(), EstimatorError> {
+        if self.k == 0 {
+            return Err(ModelError::Settings {
+                field: "knn.k",
+                reason: "0 neighbours cannot give an estimate: use at least 1".into(),
+            }
+            .into());
+        }
+        Ok(())
+    }
+}
+
+/// Per-feature centring and scaling fitted on the samples: `z = (x − mean) / scale`, the scale
+/// being the (population) standard deviation, or 1 for a feature constant on the samples.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct Standardisation {
+    /// Mean of each feature on the samples.
+    pub means: Vec<f64>,
+    /// Standard deviation of each feature (1 when constant).
+    pub scales: Vec<f64>,
+}
+
+impl Standardisation {
+    /// Fits on `rows` (at least one, all of the same length `dim`, all finite).
+    pub fn fit(rows: &[Vec<f64>], dim: usize) -> Self {
+        let n = rows.len().max(1) as f64;
+        let mut means = vec![0.0; dim];
+        let mut scales = vec![1.0; dim];
+        for d in 0..dim {
+            let column = rows.iter().map(|r| r[d]);
+            let mean = column.clone().sum::<f64>() / n;
+            let (lo, hi) = column
+                .clone()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                    (lo.min(x), hi.max(x))
+                });
+            // Exactly constant rather than a tiny rounding std, which would blow it up.
+            if hi > lo {
+                let var = column.map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+                if var.sqrt() > 0.0 {
+                    scales[d] = var.sqrt();
+                }
+            }
+            means[d] = mean;
+        }
+        Self { means, scales }
+    }
+
+    /// The standardised value of feature `d`.
+    pub fn apply(&self, d: usize, x: f64) -> f64 {
+        (x - self.means[d]) / self.scales[d]
+    }
+
+    /// The standardised rows, flat (row-major).
+    pub fn apply_rows(&self, rows: &[Vec<f64>]) -> Vec<f64> {
+        rows.iter()
+            .flat_map(|r| r.iter().enumerate().map(|(d, &x)| self.apply(d, x)))
+            .collect()
+    }
+
+    /// Checks a loaded standardisation for `dim` features (`field` names it in errors).
+    pub fn check(&self, dim: usize, field: &str) -> Result<(), EstimatorError> {
+        for (name, values) in [("means", &self.means), ("scales", &self.scales)] {
+            if values.len() != dim {
+                return Err(corrupted(format!(
+                    "`{field}.{name}` has {} values for {dim} features",
+                    values.len()
+                )));
+            }
+            check_finite(&format!("{field}.{name}"), values)?;
+        }
+        if let Some(d) = self.scales.iter().position(|&s| s <= 0.0) {
+            return Err(corrupted(format!("`{field}.scales[{d}]` is not positive")));
+        }
+        Ok(())
+    }
+}
+
+/// The sample rows a baseline keeps (every value present and finite) and their poses.
+pub(super) fn kept_samples(
+    data: &TrainingSet,
+    method: &str,
+) -> Result<(Vec<[f64; 2]>, Vec<Vec<f64>>), EstimatorError> {
+    let kept = complete_samples(data, method)?;
+    let poses = kept.iter().map(|&i| data.sample.poses[i]).collect();
+    let rows = kept
+        .iter()
+        .map(|&i| {
+            data.sample.rows[i]
+                .iter()
+                .map(|v| v.unwrap_or(0.0))
+                .collect()
+        })
+        .collect();
+    Ok((poses, rows))
+}
+
+/// Checks loaded sample poses and feature rows: as many rows as poses (at least one), `dim`
+/// values per row, everything finite.
+pub(super) fn check_samples(
+    poses: &[[f64; 2]],
+    rows: &[Vec<f64>],
+    dim: usize,
+) -> Result<(), EstimatorError> {
+    if poses.is_empty() {
+        return Err(corrupted("`sample_poses` is empty"));
+    }
+    if rows.len() != poses.len() {
+        return Err(corrupted(format!(
+            "`sample_features` has {} rows for {} sample poses",
+            rows.len(),
+            poses.len()
+        )));
+    }
+    for (i, p) in poses.iter().enumerate() {
+        check_finite(&format!("sample_poses[{i}]"), p)?;
+    }
+    for (i, r) in rows.iter().enumerate() {
+        if r.len() != dim {
+            return Err(corrupted(format!(
+                "`sample_features[{i}]` has {} values for {dim} features",
+                r.len()
+            )));
+        }
+        check_finite(&format!("sample_features[{i}]"), r)?;
+    }
+    Ok(())
+}
+
+/// The k-nearest-neighbours baseline, fitted.
+///
+/// Estimate: the weighted mean of the k nearest sample poses in standardised feature space
+/// (Euclidean, over the frame's present features). `uncertainty_radius`: the weighted RMS
+/// distance of those poses from the estimate (with the estimate's weights; 0 when every weight
+/// sits on one pose). No group, no conflict level.
+#[derive(Debug, Clone)]
+pub struct Knn {
+    feature_names: Vec<String>,
+    feature_config: Option<FeatureConfig>,
+    provenance: Provenance,
+    settings: KnnSettings,
+    standardisation: Standardisation,
+    sample_poses: Vec<[f64; 2]>,
+    sample_features: Vec<Vec<f64>>,
+    /// Standardised sample features, row-major.
+    inputs: Vec<f64>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct KnnFile {
+    format_version: u32,
+    method: String,
+    provenance: Provenance,
+    feature_config: Option<FeatureConfig>,
+    feature_names: Vec<String>,
+    settings: KnnSettings,
+    standardisation: Standardisation,
+    /// The kept samples' poses (mm).
+    sample_poses: Vec<[f64; 2]>,
+    /// Their raw feature values, one row per pose.
+    sample_features: Vec<Vec<f64>>,
+}
+
+impl Knn {
+    /// Version of the model file format this build writes and reads.
+    pub const FORMAT_VERSION: u32 = 1;
+    /// The `method` of its model files.
+    pub const METHOD: &'static str = "knn";
+
+    /// Fits on the sample trajectory of `data` (samples with a missing value are dropped).
+    ///
+    /// # Errors
+    /// Invalid settings, an inconsistent training set, no complete sample, or `k` above the
+    /// number of complete samples.
+    pub fn fit(settings: &KnnSettings, data: &TrainingSet) -> Result<Self, EstimatorError> {
+        settings.check()?;
+        check_training(data)?;
+        let (poses, rows) = kept_samples(data, "k-NN")?;
+        if settings.k > poses.len() {
+            return Err(ModelError::Settings {
+                field: "knn.k",
+                reason: format!(
+                    "{} neighbours but only {} samples have every feature value",
+                    settings.k,
+                    poses.len()
+                ),
+            }
+            .into());
+        }
+        let standardisation = Standardisation::fit(&rows, data.feature_names.len());
+        Ok(Self::assemble(
+            data.feature_names.to_vec(),
+            data.feature_config.cloned(),
+            data.provenance.clone(),
+            settings.clone(),
+            standardisation,
+            poses,
+            rows,
+        ))
+    }
+
+    fn assemble(
+        feature_names: Vec<String>,
+        feature_config: Option<FeatureConfig>,
+        provenance: Provenance,
+        settings: KnnSettings,
+        standardisation: Standardisation,
+        sample_poses: Vec<[f64; 2]>,
+        sample_features: Vec<Vec<f64>>,
+    ) -> Self {
+        let inputs = standardisation.apply_rows(&sample_features);
+        Self {
+            feature_names,
+            feature_config,
+            provenance,
+            settings,
+            standardisation,
+            sample_poses,
+            sample_features,
+            inputs,
+        }
+    }
+
+    /// The settings it was fitted with.
+    pub fn settings(&self) -> &KnnSettings {
+        &self.settings
+    }
+
+    /// The sample poses it searches (the complete samples of the training trajectory).
+    pub fn sample_poses(&self) -> &[[f64; 2]] {
+        &self.sample_poses
+    }
+
+    /// The k nearest samples to a frame: `(sample index, distance)` by increasing distance,
+    /// ties to the lower index; empty when no feature is present.
+    ///
+    /// # Errors
+    /// [`EstimatorError::FeatureCount`] when `features` does not have one value per feature.
+    pub fn neighbours(
+        &self,
+        features: &[Option<f64>],
+    ) -> Result<Vec<(usize, f64)>, EstimatorError> {
+        let dim = self.feature_names.len();
+        let (values, missing) = frame_values(features, dim)?;
+        if missing.len() == dim {
+            return Ok(Vec::new());
+        }
+        // A missing feature gets weight 0: same sum, one branch-free loop.
+        let mut query = vec![0.0; dim];
+        let mut mask = vec![0.0; dim];
+        for (d, v) in values.iter().enumerate() {
+            if let Some(x) = v {
+                query[d] = self.standardisation.apply(d, *x);
+                mask[d] = 1.0;
+            }
+        }
+        let k = self.settings.k;
+        let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+        for (i, row) in self.inputs.chunks_exact(dim).enumerate() {
+            let d2: f64 = row
+                .iter()
+                .zip(&query)
+                .zip(&mask)
+                .map(|((r, q), m)| m * (q - r) * (q - r))
+                .sum();
+            // Samples come in index order, so a tie never displaces an earlier sample.
+            if best.len() == k && d2 >= best[k - 1].0 {
+                continue;
+            }
+            let at = best.partition_point(|b| b.0 <= d2);
+            best.insert(at, (d2, i));
+            best.truncate(k);
+        }
+        Ok(best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect())
+    }
+
+    /// Reads a model file's text, checking the header, the settings, the standardisation and
+    /// the samples.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Model`] naming what is wrong.
+    pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
+        let file: KnnFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let dim = file.feature_names.len();
+        check_features(&file.feature_names, file.feature_config.as_ref())
+            .map_err(|e| corrupted(e.to_string()))?;
+        file.settings
+            .check()
+            .map_err(|e| corrupted(format!("`settings`: {e}")))?;
+        file.standardisation.check(dim, "standardisation")?;
+        check_samples(&file.sample_poses, &file.sample_features, dim)?;
+        if file.settings.k > file.sample_poses.len() {
+            return Err(corrupted(format!(
+                "`settings.k` is {} but there are {} samples",
+                file.settings.k,
+                file.sample_poses.len()
+            )));
+        }
+        Ok(Self::assemble(
+            file.feature_names,
+            file.feature_config,
+            file.provenance,
+            file.settings,
+            file.standardisation,
+            file.sample_poses,
+            file.sample_features,
+        ))
+    }
+
+    /// Reads a model file written from [`PoseEstimator::to_json`].
+    ///
+    /// # Errors
+    /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::Model`] naming the path
+    /// and what is wrong otherwise.
+    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
+        load_file(path, Self::from_json)
+    }
+}
+
+impl PoseEstimator for Knn {
+    fn method(&self) -> &'static str {
+        Self::METHOD
+    }
+
+    fn feature_names(&self) -> &[String] {
+        &self.feature_names
+    }
+
+    fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.feature_config.as_ref()
+    }
+
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
+        let (_, missing) = frame_values(features, self.feature_names.len())?;
+        let neighbours = self.neighbours(features)?;
+        let weights: Vec<f64> = match self.settings.weights {
+            KnnWeights::Uniform => vec![1.0; neighbours.len()],
+            KnnWeights::Distance if neighbours.iter().any(|n| n.1 == 0.0) => neighbours
+                .iter()
+                .map(|n| if n.1 == 0.0 { 1.0 } else { 0.0 })
+                .collect(),
+            KnnWeights::Distance => neighbours.iter().map(|n| 1.0 / n.1).collect(),
+        };
+        let total: f64 = weights.iter().sum();
+        let (pose, radius) = if neighbours.is_empty() || !(total > 0.0 && total.is_finite()) {
+            (None, None)
+        } else {
+            let mut mean = [0.0; 2];
+            for (&(i, _), w) in neighbours.iter().zip(&weights) {
+                for (m, p) in mean.iter_mut().zip(self.sample_poses[i]) {
+                    *m += w * p;
+                }
+            }
+            let mean = mean.map(|m| m / total);
+            let spread: f64 = neighbours
+                .iter()
+                .zip(&weights)
+                .map(|(&(i, _), w)| {
+                    let p = self.sample_poses[i];
+                    w * ((p[0] - mean[0]).powi(2) + (p[1] - mean[1]).powi(2))
+                })
+                .sum();
+            (Some(mean), Some((spread / total).sqrt()))
+        };
+        Ok(PoseEstimate {
+            pose,
+            uncertainty_radius: radius,
+            group: None,
+            conflict_level: None,
+            flags: EstimateFlags {
+                missing,
+                ..EstimateFlags::default()
+            },
+        })
+    }
+
+    fn to_json(&self) -> Result<String, EstimatorError> {
+        write_file(&KnnFile {
+            format_version: Self::FORMAT_VERSION,
+            method: Self::METHOD.to_string(),
+            provenance: self.provenance.clone(),
+            feature_config: self.feature_config.clone(),
+            feature_names: self.feature_names.clone(),
+            settings: self.settings.clone(),
+            standardisation: self.standardisation.clone(),
+            sample_poses: self.sample_poses.clone(),
+            sample_features: self.sample_features.clone(),
+        })
+    }
+}
