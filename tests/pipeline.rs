@@ -180,3 +180,23 @@ fps = 10.0
     }
     assert!(summary.methods.iter().all(|m| m.error.is_some()));
 }
+
+#[test]
+fn best_model_and_its_baselines_meet_their_expectations() {
+    // The README's `best.toml` n24 row: 0.5 mm mesh, 8 features, 24 states, learned threshold,
+    // and the baselines on the same features and frames.
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/best.toml");
+    let set = ScenarioSet::load(std::path::Path::new(path)).unwrap();
+    let n24 = set
+        .variants
+        .iter()
+        .find(|v| v.name() == "best-n24")
+        .expect("best.toml has the n24 variant");
+    let output = evitrack::experiment::run(n24, &Workbench::new(), &mut |_, _, _| {}).unwrap();
+    let summary = &output.summary;
+    assert_eq!(summary.samples, 1521);
+    let regressions = summary.regressions();
+    assert!(regressions.is_empty(), "{regressions:#?}");
+    let of = |m: &str| summary.method(m).and_then(|m| m.error).unwrap().mean;
+    assert!(of("gp") < of("knn") && of("knn") < of("evidential"));
+}
