@@ -604,7 +604,7 @@ fn corrupted_and_foreign_model_files_are_named() {
             "knn",
             "/standardisation/scales",
             json!([1.0, 1.0, 1.0]),
-            "`standardisation.scales` has 3 values for 4 features",
+            "`standardisation.scales` has 3 values where 4 are expected",
         ),
         (
             "knn",
@@ -641,7 +641,7 @@ fn corrupted_and_foreign_model_files_are_named() {
             "gp",
             "/output/means",
             json!([0.0]),
-            "`output.means` has 1 values for 2 features",
+            "`output.means` has 1 values where 2 are expected",
         ),
         (
             "centre",
@@ -672,4 +672,102 @@ fn corrupted_and_foreign_model_files_are_named() {
     );
     let missing = load(&dir.path().join("absent.json")).unwrap_err();
     assert!(matches!(missing, EstimatorError::Io { .. }), "{missing}");
+}
+
+#[test]
+fn knn_standardises_the_features() {
+    // Scaled and shifted features, and a constant one (whose mean on the samples is not exactly
+    // 0.1 in floating point), find the same neighbours.
+    fn plain(p: [f64; 2]) -> Vec<Option<f64>> {
+        vec![Some(p[0]), Some(0.2 * p[1])]
+    }
+    fn scaled(p: [f64; 2]) -> Vec<Option<f64>> {
+        vec![Some(1000.0 * p[0] + 5.0), Some(p[1]), Some(0.1)]
+    }
+    let (plain_data, scaled_data) = (Data::new(12, plain), Data::new(12, scaled));
+    for weights in [KnnWeights::Uniform, KnnWeights::Distance] {
+        let (a, b) = (knn(&plain_data, 4, weights), knn(&scaled_data, 4, weights));
+        for t in held_out(50, 8) {
+            // The constant is off by a hair in the frame: scale 1 keeps that a hair.
+            let mut frame = scaled(t);
+            frame[2] = Some(0.1 + 1e-7);
+            let (pa, pb) = (a.estimate(&plain(t)).unwrap(), b.estimate(&frame).unwrap());
+            let (pa, pb) = (pa.pose.unwrap(), pb.pose.unwrap());
+            assert!(
+                (pa[0] - pb[0]).abs() < 1e-9 && (pa[1] - pb[1]).abs() < 1e-9,
+                "{pa:?} {pb:?}"
+            );
+        }
+    }
+}
+
+fn zz_read(path: &str, dim: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
+    let mut r = csv::Reader::from_path(path).unwrap();
+    let mut poses = Vec::new();
+    let mut rows = Vec::new();
+    for rec in r.records() {
+        let rec = rec.unwrap();
+        let v = |i: usize| rec[i].parse::<f64>().ok();
+        rows.push((2..2 + dim).map(v).collect());
+        poses.push([v(10).unwrap(), v(11).unwrap()]);
+    }
+    (poses, rows)
+}
+
+#[test]
+fn zz_debug() {
+    for dim in [6usize, 8] {
+        let (tp, tr) = zz_read("/tmp/bl/test.csv", dim);
+        for (file, every) in [
+            ("/tmp/bl/s400.csv", 2),
+            ("/tmp/bl/s400.csv", 1),
+            ("/tmp/bl/s1521.csv", 1),
+        ] {
+            let (p, r) = zz_read(file, dim);
+            let poses: Vec<_> = p.into_iter().step_by(every).collect();
+            let rows: Vec<_> = r.into_iter().step_by(every).collect();
+            let names = names(dim);
+            let training = TrainingSet::new(
+                &names,
+                Labelled {
+                    poses: &poses,
+                    rows: &rows,
+                },
+            );
+            let t = std::time::Instant::now();
+            let gp = Gp::fit(&GpSettings::default(), &training).unwrap();
+            let el = t.elapsed();
+            let t = std::time::Instant::now();
+            let gp2 = Gp::from_json(&gp.to_json().unwrap()).unwrap();
+            let load = t.elapsed();
+            let k = Knn::fit(&KnnSettings::default(), &training).unwrap();
+            let c = Centre::fit(&CentreSettings::default(), &training).unwrap();
+            let mut e = [0.0; 3];
+            let mut cnt = [0; 3];
+            let mut inside = 0;
+            for (row, &t) in tr.iter().zip(&tp) {
+                for (j, est) in [&gp2 as &dyn PoseEstimator, &k, &c].iter().enumerate() {
+                    let est = est.estimate(row).unwrap();
+                    if est.pose.is_some() {
+                        let d = error(&est, t);
+                        e[j] += d;
+                        cnt[j] += 1;
+                        if j == 0 && d <= est.uncertainty_radius.unwrap() {
+                            inside += 1;
+                        }
+                    }
+                }
+            }
+            eprintln!(
+                "| {dim} | {} | {:.2} s | {:.2} s | {:.3} | {:.3} | {:.3} | {inside}/{} |",
+                poses.len(),
+                el.as_secs_f64(),
+                load.as_secs_f64(),
+                e[0] / cnt[0] as f64,
+                e[1] / cnt[1] as f64,
+                e[2] / cnt[2] as f64,
+                cnt[0]
+            );
+        }
+    }
 }

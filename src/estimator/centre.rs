@@ -33,16 +33,12 @@ impl CentreSettings {
 /// features, so only the poses count.
 #[derive(Debug, Clone)]
 pub struct Centre {
-    feature_names: Vec<String>,
-    feature_config: Option<FeatureConfig>,
-    provenance: Provenance,
-    settings: CentreSettings,
-    min: [f64; 2],
-    max: [f64; 2],
+    file: CentreFile,
     centre: [f64; 2],
 }
 
-#[derive(Serialize, Deserialize)]
+/// The model file, and the fitted state.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CentreFile {
     format_version: u32,
@@ -66,7 +62,9 @@ impl Centre {
     /// Fits on the sample poses of `data`.
     ///
     /// # Errors
-    /// An inconsistent training set (see [`check_training`]).
+    /// An inconsistent training set: no feature or a duplicate name, a feature configuration
+    /// naming other features, no sample pose, a non-finite pose, or rows that do not have one
+    /// value per feature for each pose.
     pub fn fit(settings: &CentreSettings, data: &TrainingSet) -> Result<Self, EstimatorError> {
         settings.check()?;
         check_training(data)?;
@@ -77,34 +75,22 @@ impl Centre {
                 max[k] = max[k].max(p[k]);
             }
         }
-        Ok(Self::assemble(
-            data.feature_names.to_vec(),
-            data.feature_config.cloned(),
-            data.provenance.clone(),
-            settings.clone(),
+        Ok(Self::new(CentreFile {
+            format_version: Self::FORMAT_VERSION,
+            method: Self::METHOD.to_string(),
+            provenance: data.provenance.clone(),
+            feature_config: data.feature_config.cloned(),
+            feature_names: data.feature_names.to_vec(),
+            settings: settings.clone(),
             min,
             max,
-        ))
+        }))
     }
 
-    fn assemble(
-        feature_names: Vec<String>,
-        feature_config: Option<FeatureConfig>,
-        provenance: Provenance,
-        settings: CentreSettings,
-        min: [f64; 2],
-        max: [f64; 2],
-    ) -> Self {
+    fn new(file: CentreFile) -> Self {
+        let (min, max) = (file.min, file.max);
         let centre = [0.5 * (min[0] + max[0]), 0.5 * (min[1] + max[1])];
-        Self {
-            feature_names,
-            feature_config,
-            provenance,
-            settings,
-            min,
-            max,
-            centre,
-        }
+        Self { file, centre }
     }
 
     /// The estimate of every frame (mm).
@@ -114,12 +100,12 @@ impl Centre {
 
     /// The sample poses' bounding box: smallest and largest x and y (mm).
     pub fn bounds(&self) -> ([f64; 2], [f64; 2]) {
-        (self.min, self.max)
+        (self.file.min, self.file.max)
     }
 
     /// The settings it was fitted with.
     pub fn settings(&self) -> &CentreSettings {
-        &self.settings
+        &self.file.settings
     }
 
     /// Reads a model file's text, checking the header, the features and the bounding box.
@@ -130,8 +116,7 @@ impl Centre {
         let file: CentreFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
         check_features(&file.feature_names, file.feature_config.as_ref())
             .map_err(|e| corrupted(e.to_string()))?;
-        for k in 0..2 {
-            let axis = ["x", "y"][k];
+        for (k, axis) in ["x", "y"].iter().enumerate() {
             if !(file.min[k].is_finite() && file.max[k].is_finite()) {
                 return Err(corrupted(format!("`min` or `max` {axis} is not finite")));
             }
@@ -139,14 +124,7 @@ impl Centre {
                 return Err(corrupted(format!("`min` {axis} is above `max` {axis}")));
             }
         }
-        Ok(Self::assemble(
-            file.feature_names,
-            file.feature_config,
-            file.provenance,
-            file.settings,
-            file.min,
-            file.max,
-        ))
+        Ok(Self::new(file))
     }
 
     /// Reads a model file written from [`PoseEstimator::to_json`].
@@ -165,15 +143,15 @@ impl PoseEstimator for Centre {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.feature_names
+        &self.file.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.feature_config.as_ref()
+        self.file.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (_, missing) = frame_values(features, self.feature_names.len())?;
+        let (_, missing) = frame_values(features, self.file.feature_names.len())?;
         Ok(PoseEstimate {
             pose: Some(self.centre),
             uncertainty_radius: None,
@@ -187,16 +165,7 @@ impl PoseEstimator for Centre {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&CentreFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: self.provenance.clone(),
-            feature_config: self.feature_config.clone(),
-            feature_names: self.feature_names.clone(),
-            settings: self.settings.clone(),
-            min: self.min,
-            max: self.max,
-        })
+        write_file(&self.file)
     }
 }
 

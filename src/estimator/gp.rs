@@ -13,6 +13,7 @@
 //! optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a frame costs O(n·D) for the mean and
 //! O(n²) for the variance.
 
+use std::f64::consts::LN_10;
 use std::path::Path;
 
 use nalgebra::{Cholesky, DMatrix};
@@ -27,11 +28,12 @@ use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, Training
 use crate::features::FeatureConfig;
 use crate::model::{ModelError, Provenance};
 
-/// Bounds of the log hyperparameters (inputs and outputs are standardised, so these are wide).
-const LOG_LENGTH: (f64, f64) = (-4.605_170_185_988_091, 6.907_755_278_982_137); // 1e-2 ..= 1e3
-const LOG_SIGNAL: (f64, f64) = (-6.907_755_278_982_137, 6.907_755_278_982_137); // 1e-3 ..= 1e3
-/// σn/σf in 1e-6 ..= 10: the floor keeps the kernel matrix positive definite in practice.
-const LOG_NOISE_RATIO: (f64, f64) = (-13.815_510_557_964_274, 2.302_585_092_994_046);
+/// Bounds of the log hyperparameters (inputs and outputs are standardised, so these are wide):
+/// ℓ in 1e-2 ..= 1e3, σf in 1e-3 ..= 1e3, and σn/σf in 1e-6 ..= 10 (the floor keeps the kernel
+/// matrix positive definite in practice).
+const LOG_LENGTH: (f64, f64) = (-2.0 * LN_10, 3.0 * LN_10);
+const LOG_SIGNAL: (f64, f64) = (-3.0 * LN_10, 3.0 * LN_10);
+const LOG_NOISE_RATIO: (f64, f64) = (-6.0 * LN_10, LN_10);
 /// Jitter tried, relative to σf², when the final factorisation fails.
 const JITTERS: [f64; 9] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2];
 /// The 90 % disc of an isotropic 2-D Gaussian has radius σ·√(−2 ln 0.1).
@@ -112,16 +114,7 @@ pub struct GpHyperparameters {
 /// The Gaussian-process baseline, fitted (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Gp {
-    feature_names: Vec<String>,
-    feature_config: Option<FeatureConfig>,
-    provenance: Provenance,
-    settings: GpSettings,
-    standardisation: Standardisation,
-    output: Standardisation,
-    hyper: GpHyperparameters,
-    log_marginal_likelihood: f64,
-    sample_poses: Vec<[f64; 2]>,
-    sample_features: Vec<Vec<f64>>,
+    file: GpFile,
     factor: Factor,
 }
 
@@ -138,7 +131,8 @@ struct Factor {
     noise_var: f64,
 }
 
-#[derive(Serialize, Deserialize)]
+/// The model file, and the fitted state.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct GpFile {
     format_version: u32,
@@ -153,6 +147,7 @@ struct GpFile {
     hyperparameters: GpHyperparameters,
     /// On the fit samples, summed over the two coordinates (standardised units).
     log_marginal_likelihood: f64,
+    /// The kept samples' poses (mm) and raw feature values.
     sample_poses: Vec<[f64; 2]>,
     sample_features: Vec<Vec<f64>>,
 }
@@ -174,31 +169,26 @@ impl Gp {
         let (poses, rows) = kept_samples(data, "the Gaussian process")?;
         let dim = data.feature_names.len();
         let standardisation = Standardisation::fit(&rows, dim);
-        let pose_rows: Vec<Vec<f64>> = poses.iter().map(|p| p.to_vec()).collect();
-        let output = Standardisation::fit(&pose_rows, 2);
-
-        let n = poses.len();
-        let m = n.min(settings.max_fit_samples);
+        let output = Standardisation::fit(&pose_rows(&poses), 2);
+        let (n, m) = (poses.len(), poses.len().min(settings.max_fit_samples));
         let subset: Vec<usize> = (0..m).map(|i| i * n / m).collect();
         let inputs = standardisation.apply_rows(&rows);
-        let outputs = output.apply_rows(&pose_rows);
+        let outputs = output.apply_rows(&pose_rows(&poses));
         let objective = Objective::new(&inputs, &outputs, dim, &subset);
         // One thread per start; the best value wins, ties to the earlier start.
         let found: Vec<Option<(Vec<f64>, f64)>> = std::thread::scope(|scope| {
             let handles: Vec<_> = (0..settings.starts)
                 .map(|s| {
                     let power = s.div_ceil(2) as f64 * if s % 2 == 1 { -1.0 } else { 1.0 };
-                    let mut start =
-                        vec![(settings.initial_length_scale * 4f64.powf(power)).ln(); dim];
+                    let length = (settings.initial_length_scale * 4f64.powf(power)).ln();
+                    let mut start = vec![length; dim];
                     start.extend([0.0, settings.initial_noise.ln()]);
                     let objective = &objective;
                     scope.spawn(move || minimise(objective, start, settings.iterations))
                 })
                 .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().ok().flatten())
-                .collect()
+            let joined = handles.into_iter().map(|h| h.join().ok().flatten());
+            joined.collect()
         });
         let mut best: Option<(Vec<f64>, f64)> = None;
         for candidate in found.into_iter().flatten() {
@@ -213,79 +203,56 @@ impl Gp {
                     .into(),
             )
         })?;
-        let hyper = GpHyperparameters {
-            length_scales: theta[..dim].iter().map(|t| t.exp()).collect(),
-            signal_std: theta[dim].exp(),
-            noise_std: (theta[dim] + theta[dim + 1]).exp(),
-        };
-        Self::assemble(
-            data.feature_names.to_vec(),
-            data.feature_config.cloned(),
-            data.provenance.clone(),
-            settings.clone(),
+        let file = GpFile {
+            format_version: Self::FORMAT_VERSION,
+            method: Self::METHOD.to_string(),
+            provenance: data.provenance.clone(),
+            feature_config: data.feature_config.cloned(),
+            feature_names: data.feature_names.to_vec(),
+            settings: settings.clone(),
             standardisation,
             output,
-            hyper,
-            -value * m as f64,
-            poses,
-            rows,
-        )
-        .map_err(|reason| EstimatorError::Training(reason))
+            hyperparameters: GpHyperparameters {
+                length_scales: theta[..dim].iter().map(|t| t.exp()).collect(),
+                signal_std: theta[dim].exp(),
+                noise_std: (theta[dim] + theta[dim + 1]).exp(),
+            },
+            log_marginal_likelihood: -value * m as f64,
+            sample_poses: poses,
+            sample_features: rows,
+        };
+        Self::factor(file).map_err(EstimatorError::Training)
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn assemble(
-        feature_names: Vec<String>,
-        feature_config: Option<FeatureConfig>,
-        provenance: Provenance,
-        settings: GpSettings,
-        standardisation: Standardisation,
-        output: Standardisation,
-        hyper: GpHyperparameters,
-        log_marginal_likelihood: f64,
-        sample_poses: Vec<[f64; 2]>,
-        sample_features: Vec<Vec<f64>>,
-    ) -> Result<Self, String> {
-        let pose_rows: Vec<Vec<f64>> = sample_poses.iter().map(|p| p.to_vec()).collect();
+    /// The estimator of a fitted state: the same operations whether fitted or loaded.
+    fn factor(file: GpFile) -> Result<Self, String> {
         let factor = Factor::new(
-            &standardisation.apply_rows(&sample_features),
-            &output.apply_rows(&pose_rows),
-            &hyper,
+            &file.standardisation.apply_rows(&file.sample_features),
+            &file.output.apply_rows(&pose_rows(&file.sample_poses)),
+            &file.hyperparameters,
         )?;
-        Ok(Self {
-            feature_names,
-            feature_config,
-            provenance,
-            settings,
-            standardisation,
-            output,
-            hyper,
-            log_marginal_likelihood,
-            sample_poses,
-            sample_features,
-            factor,
-        })
+        Ok(Self { file, factor })
     }
 
     /// The settings it was fitted with.
     pub fn settings(&self) -> &GpSettings {
-        &self.settings
+        &self.file.settings
     }
 
     /// The fitted hyperparameters (standardised units).
     pub fn hyperparameters(&self) -> &GpHyperparameters {
-        &self.hyper
+        &self.file.hyperparameters
     }
 
     /// The log marginal likelihood the hyperparameters reached on the fit samples (summed over
     /// x and y, standardised units).
     pub fn log_marginal_likelihood(&self) -> f64 {
-        self.log_marginal_likelihood
+        self.file.log_marginal_likelihood
     }
 
     /// The samples it regresses on (the complete samples of the training trajectory).
     pub fn sample_poses(&self) -> &[[f64; 2]] {
-        &self.sample_poses
+        &self.file.sample_poses
     }
 
     /// Reads a model file's text, checking the header, settings, standardisations,
@@ -310,37 +277,22 @@ impl Gp {
                 h.length_scales.len()
             )));
         }
-        check_finite("hyperparameters.length_scales", &h.length_scales)?;
-        for (field, v) in [
-            ("hyperparameters.signal_std", h.signal_std),
-            ("hyperparameters.noise_std", h.noise_std),
-        ] {
+        let named = (h.length_scales.iter().enumerate())
+            .map(|(d, &v)| (format!("hyperparameters.length_scales[{d}]"), v))
+            .chain([
+                ("hyperparameters.signal_std".to_string(), h.signal_std),
+                ("hyperparameters.noise_std".to_string(), h.noise_std),
+            ]);
+        for (field, v) in named {
             if !(v.is_finite() && v > 0.0) {
                 return Err(corrupted(format!(
                     "`{field}` is {v}, not a positive number"
                 )));
             }
         }
-        if let Some(d) = h.length_scales.iter().position(|&l| l <= 0.0) {
-            return Err(corrupted(format!(
-                "`hyperparameters.length_scales[{d}]` is not positive"
-            )));
-        }
         check_finite("log_marginal_likelihood", &[file.log_marginal_likelihood])?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
-        Self::assemble(
-            file.feature_names,
-            file.feature_config,
-            file.provenance,
-            file.settings,
-            file.standardisation,
-            file.output,
-            file.hyperparameters,
-            file.log_marginal_likelihood,
-            file.sample_poses,
-            file.sample_features,
-        )
-        .map_err(corrupted)
+        Self::factor(file).map_err(corrupted)
     }
 
     /// Reads a model file written from [`PoseEstimator::to_json`].
@@ -355,18 +307,12 @@ impl Gp {
     /// Predictive mean (mm) and the RMS over x and y of the predictive standard deviation (mm)
     /// for a complete row of feature values.
     fn predict(&self, values: &[f64]) -> ([f64; 2], f64) {
-        let f = &self.factor;
-        let h = &self.hyper;
-        let dim = values.len();
-        let query: Vec<f64> = values
-            .iter()
-            .enumerate()
-            .map(|(d, &x)| self.standardisation.apply(d, x) / h.length_scales[d])
+        let (f, h, file) = (&self.factor, &self.file.hyperparameters, &self.file);
+        let query: Vec<f64> = (values.iter().enumerate())
+            .map(|(d, &x)| file.standardisation.apply(d, x) / h.length_scales[d])
             .collect();
         let sf2 = h.signal_std * h.signal_std;
-        let kstar: Vec<f64> = f
-            .inputs
-            .chunks_exact(dim)
+        let kstar: Vec<f64> = (f.inputs.chunks_exact(values.len()))
             .map(|row| sf2 * (-0.5 * squared_distance(row, &query)).exp())
             .collect();
         let mut mean = [0.0; 2];
@@ -378,18 +324,20 @@ impl Gp {
         let n = kstar.len();
         let mut v = vec![0.0; n];
         for i in 0..n {
-            let row = &f.lower[i * n..i * n + i];
-            let dot: f64 = row.iter().zip(&v[..i]).map(|(l, x)| l * x).sum();
+            let dot = fast_dot(&f.lower[i * n..i * n + i], &v[..i]);
             v[i] = (kstar[i] - dot) / f.lower[i * n + i];
         }
-        let latent = (sf2 - v.iter().map(|x| x * x).sum::<f64>()).max(0.0);
+        let latent = (sf2 - fast_dot(&v, &v)).max(0.0);
         let std = (latent + f.noise_var).sqrt();
-        let [sx, sy] = [self.output.scales[0], self.output.scales[1]];
+        let (means, scales) = (&file.output.means, &file.output.scales);
         let pose = [
-            self.output.means[0] + sx * mean[0],
-            self.output.means[1] + sy * mean[1],
+            means[0] + scales[0] * mean[0],
+            means[1] + scales[1] * mean[1],
         ];
-        (pose, std * (0.5 * (sx * sx + sy * sy)).sqrt())
+        (
+            pose,
+            std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
+        )
     }
 }
 
@@ -399,15 +347,15 @@ impl PoseEstimator for Gp {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.feature_names
+        &self.file.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.feature_config.as_ref()
+        self.file.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (values, missing) = frame_values(features, self.feature_names.len())?;
+        let (values, missing) = frame_values(features, self.file.feature_names.len())?;
         let (pose, radius) = if missing.is_empty() {
             let values: Vec<f64> = values.iter().map(|v| v.unwrap_or(0.0)).collect();
             let (pose, std) = self.predict(&values);
@@ -428,21 +376,25 @@ impl PoseEstimator for Gp {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&GpFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: self.provenance.clone(),
-            feature_config: self.feature_config.clone(),
-            feature_names: self.feature_names.clone(),
-            settings: self.settings.clone(),
-            standardisation: self.standardisation.clone(),
-            output: self.output.clone(),
-            hyperparameters: self.hyper.clone(),
-            log_marginal_likelihood: self.log_marginal_likelihood,
-            sample_poses: self.sample_poses.clone(),
-            sample_features: self.sample_features.clone(),
-        })
+        write_file(&self.file)
     }
+}
+
+fn pose_rows(poses: &[[f64; 2]]) -> Vec<Vec<f64>> {
+    poses.iter().map(|p| p.to_vec()).collect()
+}
+
+/// A dot product with four running sums (one sum would be a chain of dependent additions).
+fn fast_dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut sums = [0.0; 4];
+    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = dot(a4.remainder(), b4.remainder());
+    for (x, y) in a4.zip(b4) {
+        for k in 0..4 {
+            sums[k] += x[k] * y[k];
+        }
+    }
+    (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
 }
 
 fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
@@ -493,11 +445,7 @@ impl Factor {
                 });
             }
         }
-        Err(
-            "the Gaussian process's kernel matrix is not positive definite, even with jitter \
-             of 1e-2 σf²"
-                .into(),
-        )
+        Err("the kernel matrix is not positive definite, even with jitter of 1e-2 σf²".into())
     }
 }
 
@@ -558,24 +506,18 @@ impl Objective {
             alpha[(i, 0)] * alpha[(j, 0)] + alpha[(i, 1)] * alpha[(j, 1)] - 2.0 * inverse[i + j * m]
         };
         let mut grad = vec![0.0; dim + 2];
-        let mut p = 0;
         let mut off_diagonal = 0.0;
-        for j in 0..m {
-            for i in 0..j {
-                let wk = w(i, j) * kf[p];
-                off_diagonal += wk;
-                for (g, (diff, il)) in grad[..dim]
-                    .iter_mut()
-                    .zip(self.diffs[p * dim..(p + 1) * dim].iter().zip(&inv_l2))
-                {
-                    *g += wk * diff * il;
-                }
-                p += 1;
+        let pairs = (0..m).flat_map(|j| (0..j).map(move |i| (i, j)));
+        for (((i, j), k), diff) in pairs.zip(&kf).zip(self.diffs.chunks_exact(dim)) {
+            let wk = w(i, j) * k;
+            off_diagonal += wk;
+            for ((g, d), il) in grad.iter_mut().zip(diff).zip(&inv_l2) {
+                *g += wk * d * il;
             }
         }
         let trace: f64 = (0..m).map(|i| w(i, i)).sum();
         // σn = σf·ratio, so log σf moves σn too.
-        grad[dim + 1] = 0.9 * sn2 * trace;
+        grad[dim + 1] = sn2 * trace;
         grad[dim] = 2.0 * off_diagonal + sf2 * trace + grad[dim + 1];
         let scale = -1.0 / m as f64;
         let value = scale * lml;
@@ -625,29 +567,17 @@ fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
     // (K⁻¹)_ij = Σ_k M_ki M_kj, over k ≥ j0 for the block of j0 (the rest is exactly 0).
     let mut inverse = vec![0.0; n * n];
     for j0 in (0..n).step_by(4) {
-        let block = &m[j0 * n..(j0 + 4) * n];
-        let columns: [&[f64]; 4] = std::array::from_fn(|c| &block[c * n + j0..(c + 1) * n]);
+        let columns: [&[f64]; 4] = std::array::from_fn(|c| &m[(j0 + c) * n + j0..(j0 + c + 1) * n]);
         for i in 0..(j0 + 4).min(n) {
-            let mi = &m[i * n + j0..(i + 1) * n];
-            // Two running sums per column (even and odd k) for instruction-level parallelism.
-            let mut even = [0.0; 4];
-            let mut odd = [0.0; 4];
-            let pairs = mi.chunks_exact(2);
-            let last = pairs.remainder().first().copied();
-            for (p, v) in pairs.enumerate() {
-                let k = 2 * p;
+            let mut sums = [0.0; 4];
+            for (k, v) in m[i * n + j0..(i + 1) * n].iter().enumerate() {
                 for c in 0..4 {
-                    even[c] += v[0] * columns[c][k];
-                    odd[c] += v[1] * columns[c][k + 1];
+                    sums[c] += v * columns[c][k];
                 }
             }
-            let mut sums = [0.0; 4];
-            for c in 0..4 {
-                sums[c] = even[c] + odd[c] + last.map_or(0.0, |v| v * columns[c][mi.len() - 1]);
-            }
-            for (c, sum) in sums.iter().enumerate() {
-                if j0 + c < n && i <= j0 + c {
-                    inverse[i + (j0 + c) * n] = *sum;
+            for (c, sum) in sums.into_iter().enumerate() {
+                if i <= j0 + c && j0 + c < n {
+                    inverse[i + (j0 + c) * n] = sum;
                 }
             }
         }
@@ -692,19 +622,17 @@ fn minimise(objective: &Objective, start: Vec<f64>, iterations: usize) -> Option
             history.clear();
             held = now_held;
         }
-        let free: Vec<f64> = g
-            .iter()
-            .zip(&held)
-            .map(|(v, &h)| if h { 0.0 } else { *v })
-            .collect();
+        let unheld = |v: &[f64]| -> Vec<f64> {
+            v.iter()
+                .zip(&held)
+                .map(|(v, &h)| if h { 0.0 } else { *v })
+                .collect()
+        };
+        let free = unheld(&g);
         if free.iter().all(|v| v.abs() < 1e-7) {
             break;
         }
-        let mut direction = lbfgs_direction(&history, &free);
-        direction
-            .iter_mut()
-            .zip(&held)
-            .for_each(|(d, &h)| *d = if h { 0.0 } else { *d });
+        let mut direction = unheld(&lbfgs_direction(&history, &free));
         let steepest: Vec<f64> = free.iter().map(|v| -v).collect();
         if dot(&direction, &free) >= 0.0 {
             history.clear();

@@ -120,7 +120,7 @@ impl Standardisation {
         for (name, values) in [("means", &self.means), ("scales", &self.scales)] {
             if values.len() != dim {
                 return Err(corrupted(format!(
-                    "`{field}.{name}` has {} values for {dim} features",
+                    "`{field}.{name}` has {} values where {dim} are expected",
                     values.len()
                 )));
             }
@@ -133,11 +133,11 @@ impl Standardisation {
     }
 }
 
+/// Sample poses (mm) and their feature rows.
+pub(super) type Samples = (Vec<[f64; 2]>, Vec<Vec<f64>>);
+
 /// The sample rows a baseline keeps (every value present and finite) and their poses.
-pub(super) fn kept_samples(
-    data: &TrainingSet,
-    method: &str,
-) -> Result<(Vec<[f64; 2]>, Vec<Vec<f64>>), EstimatorError> {
+pub(super) fn kept_samples(data: &TrainingSet, method: &str) -> Result<Samples, EstimatorError> {
     let kept = complete_samples(data, method)?;
     let poses = kept.iter().map(|&i| data.sample.poses[i]).collect();
     let rows = kept
@@ -192,18 +192,13 @@ pub(super) fn check_samples(
 /// sits on one pose). No group, no conflict level.
 #[derive(Debug, Clone)]
 pub struct Knn {
-    feature_names: Vec<String>,
-    feature_config: Option<FeatureConfig>,
-    provenance: Provenance,
-    settings: KnnSettings,
-    standardisation: Standardisation,
-    sample_poses: Vec<[f64; 2]>,
-    sample_features: Vec<Vec<f64>>,
+    file: KnnFile,
     /// Standardised sample features, row-major.
     inputs: Vec<f64>,
 }
 
-#[derive(Serialize, Deserialize)]
+/// The model file, and the fitted state.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct KnnFile {
     format_version: u32,
@@ -245,48 +240,33 @@ impl Knn {
             }
             .into());
         }
-        let standardisation = Standardisation::fit(&rows, data.feature_names.len());
-        Ok(Self::assemble(
-            data.feature_names.to_vec(),
-            data.feature_config.cloned(),
-            data.provenance.clone(),
-            settings.clone(),
-            standardisation,
-            poses,
-            rows,
-        ))
+        Ok(Self::new(KnnFile {
+            format_version: Self::FORMAT_VERSION,
+            method: Self::METHOD.to_string(),
+            provenance: data.provenance.clone(),
+            feature_config: data.feature_config.cloned(),
+            feature_names: data.feature_names.to_vec(),
+            settings: settings.clone(),
+            standardisation: Standardisation::fit(&rows, data.feature_names.len()),
+            sample_poses: poses,
+            sample_features: rows,
+        }))
     }
 
-    fn assemble(
-        feature_names: Vec<String>,
-        feature_config: Option<FeatureConfig>,
-        provenance: Provenance,
-        settings: KnnSettings,
-        standardisation: Standardisation,
-        sample_poses: Vec<[f64; 2]>,
-        sample_features: Vec<Vec<f64>>,
-    ) -> Self {
-        let inputs = standardisation.apply_rows(&sample_features);
-        Self {
-            feature_names,
-            feature_config,
-            provenance,
-            settings,
-            standardisation,
-            sample_poses,
-            sample_features,
-            inputs,
-        }
+    /// The estimator of a fitted state: the same operations whether fitted or loaded.
+    fn new(file: KnnFile) -> Self {
+        let inputs = file.standardisation.apply_rows(&file.sample_features);
+        Self { file, inputs }
     }
 
     /// The settings it was fitted with.
     pub fn settings(&self) -> &KnnSettings {
-        &self.settings
+        &self.file.settings
     }
 
     /// The sample poses it searches (the complete samples of the training trajectory).
     pub fn sample_poses(&self) -> &[[f64; 2]] {
-        &self.sample_poses
+        &self.file.sample_poses
     }
 
     /// The k nearest samples to a frame: `(sample index, distance)` by increasing distance,
@@ -298,7 +278,7 @@ impl Knn {
         &self,
         features: &[Option<f64>],
     ) -> Result<Vec<(usize, f64)>, EstimatorError> {
-        let dim = self.feature_names.len();
+        let dim = self.file.feature_names.len();
         let (values, missing) = frame_values(features, dim)?;
         if missing.len() == dim {
             return Ok(Vec::new());
@@ -308,11 +288,11 @@ impl Knn {
         let mut mask = vec![0.0; dim];
         for (d, v) in values.iter().enumerate() {
             if let Some(x) = v {
-                query[d] = self.standardisation.apply(d, *x);
+                query[d] = self.file.standardisation.apply(d, *x);
                 mask[d] = 1.0;
             }
         }
-        let k = self.settings.k;
+        let k = self.file.settings.k;
         let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
         for (i, row) in self.inputs.chunks_exact(dim).enumerate() {
             let d2: f64 = row
@@ -354,15 +334,7 @@ impl Knn {
                 file.sample_poses.len()
             )));
         }
-        Ok(Self::assemble(
-            file.feature_names,
-            file.feature_config,
-            file.provenance,
-            file.settings,
-            file.standardisation,
-            file.sample_poses,
-            file.sample_features,
-        ))
+        Ok(Self::new(file))
     }
 
     /// Reads a model file written from [`PoseEstimator::to_json`].
@@ -381,17 +353,17 @@ impl PoseEstimator for Knn {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.feature_names
+        &self.file.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.feature_config.as_ref()
+        self.file.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (_, missing) = frame_values(features, self.feature_names.len())?;
+        let (_, missing) = frame_values(features, self.file.feature_names.len())?;
         let neighbours = self.neighbours(features)?;
-        let weights: Vec<f64> = match self.settings.weights {
+        let weights: Vec<f64> = match self.file.settings.weights {
             KnnWeights::Uniform => vec![1.0; neighbours.len()],
             KnnWeights::Distance if neighbours.iter().any(|n| n.1 == 0.0) => neighbours
                 .iter()
@@ -405,7 +377,7 @@ impl PoseEstimator for Knn {
         } else {
             let mut mean = [0.0; 2];
             for (&(i, _), w) in neighbours.iter().zip(&weights) {
-                for (m, p) in mean.iter_mut().zip(self.sample_poses[i]) {
+                for (m, p) in mean.iter_mut().zip(self.file.sample_poses[i]) {
                     *m += w * p;
                 }
             }
@@ -414,7 +386,7 @@ impl PoseEstimator for Knn {
                 .iter()
                 .zip(&weights)
                 .map(|(&(i, _), w)| {
-                    let p = self.sample_poses[i];
+                    let p = self.file.sample_poses[i];
                     w * ((p[0] - mean[0]).powi(2) + (p[1] - mean[1]).powi(2))
                 })
                 .sum();
@@ -433,16 +405,6 @@ impl PoseEstimator for Knn {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&KnnFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: self.provenance.clone(),
-            feature_config: self.feature_config.clone(),
-            feature_names: self.feature_names.clone(),
-            settings: self.settings.clone(),
-            standardisation: self.standardisation.clone(),
-            sample_poses: self.sample_poses.clone(),
-            sample_features: self.sample_features.clone(),
-        })
+        write_file(&self.file)
     }
 }
