@@ -232,6 +232,9 @@ pub fn run(
     })
 }
 
+/// Ground truth (mm), frame times (s) and feature rows of one motion.
+type LabelledMotion = (Vec<[f64; 2]>, Vec<f64>, Arc<FeatureRows>);
+
 /// Ground truth, frame times and feature rows of one of the scenario's motions (simulated and
 /// extracted once per workbench); `label` names it in progress and errors.
 fn labelled_motion(
@@ -242,7 +245,7 @@ fn labelled_motion(
     label: &str,
     progress: Progress<'_>,
     timings: &mut Timings,
-) -> Result<(Vec<[f64; 2]>, Vec<f64>, Arc<FeatureRows>), ExperimentError> {
+) -> Result<LabelledMotion, ExperimentError> {
     let s = scenario.get();
     let clock = Instant::now();
     let data = bench.dataset(&s.sim, motion, seed, &mut |d, t| progress(label, d, t))?;
