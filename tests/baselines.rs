@@ -700,3 +700,47 @@ fn knn_standardises_the_features() {
         }
     }
 }
+
+#[test]
+fn the_feature_configuration_travels_with_the_model() {
+    use evitrack::features::FeatureConfig;
+    let config = FeatureConfig::with_barycentre();
+    let names = config.check().unwrap().names();
+    let poses = grid(5);
+    let rows: Vec<Vec<Option<f64>>> = poses
+        .iter()
+        .map(|p| {
+            (0..names.len())
+                .map(|i| Some(p[0] * (i as f64 + 1.0) + p[1] / (i as f64 + 2.0)))
+                .collect()
+        })
+        .collect();
+    let labelled = Labelled {
+        poses: &poses,
+        rows: &rows,
+    };
+    let training = TrainingSet::new(&names, labelled).with_config(&config);
+    let dir = tempfile::tempdir().unwrap();
+    let estimators: [Box<dyn PoseEstimator>; 3] = [
+        Box::new(Knn::fit(&KnnSettings::default(), &training).unwrap()),
+        Box::new(Gp::fit(&GpSettings::default(), &training).unwrap()),
+        Box::new(Centre::fit(&CentreSettings::default(), &training).unwrap()),
+    ];
+    for estimator in &estimators {
+        assert_eq!(estimator.feature_config(), Some(&config));
+        let path = dir.path().join(format!("{}.json", estimator.method()));
+        std::fs::write(&path, estimator.to_json().unwrap()).unwrap();
+        assert_eq!(load(&path).unwrap().feature_config(), Some(&config));
+    }
+    // A configuration naming other features is refused.
+    let other = names.iter().map(|n| format!("{n}_")).collect::<Vec<_>>();
+    let training = TrainingSet::new(&other, labelled).with_config(&config);
+    let error = Centre::fit(&CentreSettings::default(), &training).unwrap_err();
+    assert!(
+        matches!(
+            error,
+            EstimatorError::Model(ModelError::InvalidInput { .. })
+        ),
+        "{error}"
+    );
+}
