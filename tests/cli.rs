@@ -401,7 +401,8 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
         "{stderr}"
     );
     let table = String::from_utf8_lossy(&out.stdout);
-    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 3);
+    // One row per variant and method: 3 variants × (evidential, knn, gp, centre).
+    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 12);
     for file in [
         "sweep.json",
         "sweep.csv",
