@@ -1,0 +1,168 @@
+//! Unit tests of `scenario.rs`.
+use super::*;
+
+const BASE: &str = r#"
+name = "t"
+seed = 3
+[model]
+states = [2, 2, 2, 3, 3, 2]
+"#;
+
+#[test]
+fn a_file_without_sweep_is_one_variant_with_defaults_elsewhere() {
+    let set = ScenarioSet::parse(BASE, "t.toml").unwrap();
+    assert_eq!(set.variants.len(), 1);
+    assert_eq!(set.base.seed, 3);
+    assert_eq!(set.base.tests, Scenario::default().tests);
+    assert_eq!(set.variants[0], set.base);
+}
+
+#[test]
+fn a_partial_table_keeps_the_defaults_it_leaves_out() {
+    let set =
+        ScenarioSet::parse("[model]\nseed = 7\n[sim.noise]\nsigma = 5.0\n", "p.toml").unwrap();
+    let base = &set.base;
+    assert_eq!(base.name, "p");
+    assert_eq!(base.model.seed, 7);
+    assert_eq!(base.model.states, Scenario::default().model.states);
+    assert_eq!(base.sim.noise.sigma, 5.0);
+    assert_eq!(base.sim.camera, Scenario::default().sim.camera);
+    // A motion table replaces the default motion instead of merging into it.
+    let set = ScenarioSet::parse(
+        "[sample]\nmotion = { kind = \"points\", points = [[0.0, 40.0], [1.0, 41.0]] }\n",
+        "q.toml",
+    )
+    .unwrap();
+    assert!(matches!(set.base.sample.motion, Motion::Points { .. }));
+}
+
+#[test]
+fn unknown_fields_are_reported_with_line_and_column() {
+    let text = format!("{BASE}\n[track]\nconstructr = \"bayesian\"\n");
+    let error = ScenarioSet::parse(&text, "t.toml").unwrap_err().to_string();
+    assert!(error.contains("line 8"), "{error}");
+    assert!(error.contains("column 1"), "{error}");
+    assert!(error.contains("constructr"), "{error}");
+    let error = ScenarioSet::parse("nmae = \"x\"\n", "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("line 1") && error.contains("nmae"),
+        "{error}"
+    );
+}
+
+#[test]
+fn listed_variants_replace_dotted_paths() {
+    let text = format!(
+        "{BASE}\n[[sweep.variant]]\nname = \"a\"\n[[sweep.variant]]\nname = \"b\"\n\
+         set = {{ \"model.states\" = [2, 3, 3, 3, 3, 2], \"track.constructor\" = \"consonant\" }}\n"
+    );
+    let set = ScenarioSet::parse(&text, "t.toml").unwrap();
+    assert_eq!(set.variants.len(), 2);
+    assert_eq!(set.variants[0].name, "t-a");
+    assert_eq!(set.variants[1].name, "t-b");
+    assert_eq!(
+        set.variants[1].model.states,
+        StateCounts::PerFeature(vec![2, 3, 3, 3, 3, 2])
+    );
+    assert_eq!(
+        set.variants[1].track.constructor,
+        crate::evidence::Constructor::Consonant
+    );
+    assert_eq!(set.variants[0].model, set.base.model);
+    assert!(set.variants.iter().all(|v| v.sweep == Sweep::default()));
+}
+
+#[test]
+fn a_grid_spans_the_cartesian_product() {
+    let text = format!(
+        "{BASE}\n[sweep.grid]\n\"model.states\" = [2, 3]\n\"sim.noise.sigma\" = [0.0, 2.0, 4.0]\n"
+    );
+    let set = ScenarioSet::parse(&text, "t.toml").unwrap();
+    assert_eq!(set.variants.len(), 6);
+    let names: Vec<&str> = set.variants.iter().map(|v| v.name.as_str()).collect();
+    assert!(names.contains(&"t-states=3,noise.sigma=4.0"), "{names:?}");
+
+    let sigmas: Vec<f64> = set.variants.iter().map(|v| v.sim.noise.sigma).collect();
+    assert_eq!(sigmas, [0.0, 2.0, 4.0, 0.0, 2.0, 4.0]);
+    let tables = format!(
+        "{BASE}\n[sweep.grid]\n\"sample.motion\" = [{{ kind = \"mesh\", spacing = 1.0 }}, \
+         {{ kind = \"mesh\", spacing = 0.5 }}]\n"
+    );
+    let set = ScenarioSet::parse(&tables, "t.toml").unwrap();
+    let names: Vec<&str> = set.variants.iter().map(|v| v.name.as_str()).collect();
+    assert_eq!(names, ["t-motion=mesh_1.0", "t-motion=mesh_0.5"]);
+}
+
+#[test]
+fn bad_variants_name_the_variant_and_the_problem() {
+    let typo =
+        format!("{BASE}\n[[sweep.variant]]\nname = \"x\"\nset = {{ \"model.stats\" = 3 }}\n");
+    let error = ScenarioSet::parse(&typo, "t.toml").unwrap_err().to_string();
+    assert!(error.contains("`x`") && error.contains("stats"), "{error}");
+    let twice =
+        format!("{BASE}\n[[sweep.variant]]\nname = \"x\"\n[[sweep.variant]]\nname = \"x\"\n");
+    let error = ScenarioSet::parse(&twice, "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("two variants"), "{error}");
+    let through_value =
+        format!("{BASE}\n[[sweep.variant]]\nname = \"y\"\nset = {{ \"seed.x\" = 1 }}\n");
+    let error = ScenarioSet::parse(&through_value, "t.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("not a table"), "{error}");
+}
+
+#[test]
+fn values_deserialisation_cannot_check_are_checked() {
+    for (text, needle) in [
+        ("name = \"a b\"\n", "may only hold"),
+        ("[sample]\nkeep_every = 0\n", "keep_every"),
+        ("tests = []\n", "no test motion"),
+        (
+            "[features.barycentre]\nenabled = true\n",
+            "6 counts for 8 features",
+        ),
+        ("name = \"..\"\n", "may not start with"),
+        ("paper_error = nan\n", "paper_error"),
+        ("[track]\nconflict_threshold = -1.0\n", "[track]"),
+        ("[sweep.grid]\n\"model.states\" = []\n", "empty"),
+        ("[expect]\nmax_mean_error = -1.0\n", "max_mean_error"),
+    ] {
+        let error = ScenarioSet::parse(text, "t.toml")
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains(needle), "{text:?}: {error}");
+    }
+}
+
+#[test]
+fn learning_the_threshold_needs_a_validation_motion() {
+    let scenario = Scenario {
+        name: "v".into(),
+        learn_threshold: true,
+        validation: None,
+        ..Scenario::default()
+    };
+    let error = scenario.check().unwrap_err().to_string();
+    assert!(error.contains("needs a [validation] motion"), "{error}");
+}
+
+#[test]
+fn every_shipped_scenario_file_is_valid() {
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios");
+    let mut count = 0;
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let set =
+                ScenarioSet::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            assert!(!set.variants.is_empty());
+            count += 1;
+        }
+    }
+    assert!(count >= 1);
+}
