@@ -57,6 +57,7 @@ pub mod dataset;
 pub mod estimator;
 pub mod evidence;
 pub mod experiment;
+pub mod faults;
 pub mod features;
 pub mod hmm;
 pub mod model;

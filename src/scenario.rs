@@ -13,12 +13,13 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
-use crate::estimator::{GpSettings, KnnSettings, Method};
+use crate::estimator::{GpSettings, KnnSettings, Method, MAX_FEATURES_GROUP_ERRORS};
+use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
 use crate::seed;
 use crate::sim::{Motion, SimSettings};
-use crate::track::{TrackSettings, MAX_FEATURES};
+use crate::track::{SelectionPolicy, ThresholdRule, TrackSettings, MAX_FEATURES};
 
 /// Failures while reading or checking a scenario.
 #[derive(Debug, thiserror::Error)]
@@ -93,8 +94,24 @@ pub struct Expectations {
     pub max_mean_error: Option<f64>,
     /// Largest acceptable share of test frames without an estimate (0 to 1).
     pub max_missing_share: Option<f64>,
+    /// Largest acceptable mean error over the frames faults corrupted, in mm.
+    pub max_corrupted_mean_error: Option<f64>,
+    /// Smallest acceptable area under the ROC curve of the detection score (faults only).
+    pub min_detection_auc: Option<f64>,
     /// Limits of other methods, by method name.
     pub methods: BTreeMap<String, MethodExpectations>,
+}
+
+impl Expectations {
+    /// The top-level limits: the evidential tracker's.
+    pub fn evidential(&self) -> MethodExpectations {
+        MethodExpectations {
+            max_mean_error: self.max_mean_error,
+            max_missing_share: self.max_missing_share,
+            max_corrupted_mean_error: self.max_corrupted_mean_error,
+            min_detection_auc: self.min_detection_auc,
+        }
+    }
 }
 
 /// What one method is expected to achieve.
@@ -105,6 +122,20 @@ pub struct MethodExpectations {
     pub max_mean_error: Option<f64>,
     /// Largest acceptable share of test frames without an estimate (0 to 1).
     pub max_missing_share: Option<f64>,
+    /// Largest acceptable mean error over the frames faults corrupted, in mm.
+    pub max_corrupted_mean_error: Option<f64>,
+    /// Smallest acceptable area under the ROC curve of the detection score (faults only).
+    pub min_detection_auc: Option<f64>,
+}
+
+impl MethodExpectations {
+    /// Whether any limit is set.
+    pub fn any(&self) -> bool {
+        self.max_mean_error.is_some()
+            || self.max_missing_share.is_some()
+            || self.max_corrupted_mean_error.is_some()
+            || self.min_detection_auc.is_some()
+    }
 }
 
 /// One runnable scenario (a file's base, or one of its sweep variants).
@@ -126,6 +157,9 @@ pub struct Scenario {
     pub validation: Option<Motion>,
     /// Test motions: the reported errors are measured on them.
     pub tests: Vec<Motion>,
+    /// Faults injected into every test motion (`[[faults]]`, applied in order; each test motion
+    /// draws them from its own seed stream). The sample and validation motions stay clean.
+    pub faults: Vec<FaultSpec>,
     /// Which features, with which parameters.
     pub features: FeatureConfig,
     /// HMM state counts and training settings.
@@ -135,6 +169,8 @@ pub struct Scenario {
     /// Learn the conflict threshold on the validation motion (§4.3) instead of using
     /// `track.conflict_threshold`.
     pub learn_threshold: bool,
+    /// How it is learned: `"error_weighted"` (the paper's, the default) or `{ quantile = q }`.
+    pub threshold_rule: ThresholdRule,
     /// The estimation methods to fit and compare, in table order (default: every method).
     pub estimators: Vec<Method>,
     /// k-nearest neighbours' settings (`[knn]`).
@@ -161,6 +197,7 @@ impl Default for Scenario {
             sample: SampleSettings::default(),
             validation: Some(default_validation_motion()),
             tests: vec![default_test_motion()],
+            faults: Vec::new(),
             features: FeatureConfig::default(),
             model: ModelSettings {
                 states: StateCounts::PerFeature(vec![2, 2, 2, 3, 3, 2]),
@@ -168,6 +205,7 @@ impl Default for Scenario {
             },
             track: TrackSettings::default(),
             learn_threshold: false,
+            threshold_rule: ThresholdRule::default(),
             estimators: Method::ALL.to_vec(),
             knn: KnnSettings::default(),
             gp: GpSettings::default(),
@@ -284,6 +322,9 @@ impl Scenario {
                 "`learn_threshold = true` needs a [validation] motion to learn it on".into(),
             ));
         }
+        self.threshold_rule
+            .check()
+            .map_err(|e| invalid(format!("`threshold_rule`: {e}")))?;
         if matches!(self.model.tuning, Tuning::Validation { .. }) && self.validation.is_none() {
             return Err(invalid(
                 "tuning state counts by validation error needs a [validation] motion".into(),
@@ -309,10 +350,7 @@ impl Scenario {
         {
             return Err(invalid(format!("`estimators` names `{m}` twice")));
         }
-        let top = MethodExpectations {
-            max_mean_error: self.expect.max_mean_error,
-            max_missing_share: self.expect.max_missing_share,
-        };
+        let top = self.expect.evidential();
         let named = self.expect.methods.iter().map(|(n, e)| (n.as_str(), e));
         for (name, limits) in std::iter::once(("evidential", &top)).chain(named) {
             let prefix = if name == "evidential" {
@@ -320,8 +358,7 @@ impl Scenario {
             } else {
                 format!("expect.methods.{name}")
             };
-            let limited = limits.max_mean_error.is_some() || limits.max_missing_share.is_some();
-            if (limited || name != "evidential")
+            if (limits.any() || name != "evidential")
                 && !self.estimators.iter().any(|m| m.name() == name)
             {
                 {
@@ -332,14 +369,47 @@ impl Scenario {
                 }
             }
             positive(limits.max_mean_error, &format!("{prefix}.max_mean_error"))?;
-            if let Some(share) = limits.max_missing_share {
-                if !(0.0..=1.0).contains(&share) {
+            positive(
+                limits.max_corrupted_mean_error,
+                &format!("{prefix}.max_corrupted_mean_error"),
+            )?;
+            for (value, field) in [
+                (limits.max_missing_share, "max_missing_share"),
+                (limits.min_detection_auc, "min_detection_auc"),
+            ] {
+                if let Some(share) = value.filter(|v| !(0.0..=1.0).contains(v)) {
                     return Err(invalid(format!(
-                        "`{prefix}.max_missing_share` must lie in [0, 1], not {share}"
+                        "`{prefix}.{field}` must lie in [0, 1], not {share}"
                     )));
                 }
             }
+            if (limits.max_corrupted_mean_error.is_some() || limits.min_detection_auc.is_some())
+                && self.faults.is_empty()
+            {
+                return Err(invalid(format!(
+                    "`{prefix}`: limits on corrupted frames need [[faults]]"
+                )));
+            }
         }
+        if let SelectionPolicy::Splitting { .. } = self.track.selection {
+            if self.estimators.contains(&Method::Evidential)
+                && self.validation.is_some()
+                && features.len() > MAX_FEATURES_GROUP_ERRORS
+            {
+                return Err(invalid(format!(
+                    "[track]: the splitting policy learns a reliability for every group of \
+                     features, which takes at most {MAX_FEATURES_GROUP_ERRORS} features (there are {}): \
+                     use fewer features or another selection policy",
+                    features.len()
+                )));
+            }
+        }
+        let faults = FaultPlan::check(
+            &self.faults,
+            &features.names(),
+            [self.sim.camera.width, self.sim.camera.height],
+        )
+        .map_err(|e| invalid(format!("[[faults]]: {e}")))?;
         let mut scenario = self.clone();
         scenario.validation = self
             .validation
@@ -355,6 +425,7 @@ impl Scenario {
             raw: self.clone(),
             scenario,
             features,
+            faults,
         })
     }
 }
@@ -367,6 +438,7 @@ pub struct CheckedScenario {
     raw: Scenario,
     scenario: Scenario,
     features: FeatureSet,
+    faults: FaultPlan,
 }
 
 /// Read access to the checked settings (`checked.seed`, `checked.tests`, …).
@@ -398,6 +470,11 @@ impl CheckedScenario {
     /// The checked feature set.
     pub fn feature_set(&self) -> &FeatureSet {
         &self.features
+    }
+
+    /// The checked faults of the test motions.
+    pub fn fault_plan(&self) -> &FaultPlan {
+        &self.faults
     }
 
     /// The same scenario with another master seed (checked again: seeds derive from it).

@@ -34,6 +34,12 @@ pub fn for_part(master: u64, part: ScenarioPart) -> u64 {
     }
 }
 
+/// The seed of the faults injected into test motion `test` (each fault draws its own stream
+/// from it).
+pub fn for_faults(master: u64, test: usize) -> u64 {
+    derive(master, &format!("faults{test}"))
+}
+
 /// The seed of the `round`-th batch of adaptive samples (§3.1).
 pub fn for_adaptive_round(master: u64, round: usize) -> u64 {
     derive(master, &format!("adaptive{round}"))

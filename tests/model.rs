@@ -7,7 +7,7 @@ use evitrack::model::{
     EvidentialModel, FeatureFrames, FeatureModel, ModelError, ModelParts, ModelSettings,
     Provenance, StateCountTuner, StateCounts, TunerError, Tuning, FORMAT_VERSION,
 };
-use evitrack::track::TrackSettings;
+use evitrack::track::{GroupError, TrackSettings};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -20,6 +20,7 @@ fn complete(frames: FeatureFrames) -> EvidentialModel {
         track: TrackSettings::default(),
         threshold_learned: false,
         validation_errors: None,
+        group_errors: Vec::new(),
         provenance: Provenance::new(Some("test".into()), 1),
     })
     .unwrap()
@@ -359,6 +360,10 @@ fn save_load_round_trip() {
         },
         threshold_learned: true,
         validation_errors: Some(vec![0.1, 0.2, 0.3, 0.4]),
+        group_errors: vec![GroupError {
+            features: vec![0, 2],
+            error: 0.25,
+        }],
         provenance: Provenance::new(Some("round-trip".into()), 9),
     })
     .unwrap();
@@ -372,6 +377,7 @@ fn save_load_round_trip() {
     );
     assert!(back.threshold_learned());
     assert_eq!(back.validation_errors(), Some(&[0.1, 0.2, 0.3, 0.4][..]));
+    assert_eq!(back.group_errors(), model.group_errors());
     assert_eq!(back.provenance(), model.provenance());
     assert_eq!(back.provenance().seed, 9);
     // serde_json without its `float_roundtrip` feature may parse a number 1 ulp away from the
@@ -677,6 +683,7 @@ fn a_complete_model_checks_its_parts() {
         track,
         threshold_learned: false,
         validation_errors,
+        group_errors: Vec::new(),
         provenance: Provenance::new(None, 0),
     };
     let bad_threshold = TrackSettings {
@@ -696,4 +703,13 @@ fn a_complete_model_checks_its_parts() {
     })
     .unwrap_err();
     assert!(err.to_string().contains("size_line0"), "{err}");
+    // Group errors must name existing features, ascending, with a finite error.
+    for (features, error) in [(vec![0, 1], 0.5), (vec![], 0.5), (vec![0], f64::NAN)] {
+        let err = EvidentialModel::new(ModelParts {
+            group_errors: vec![GroupError { features, error }],
+            ..model.parts().clone()
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("group errors"), "{err}");
+    }
 }

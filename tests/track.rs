@@ -6,7 +6,8 @@ use evitrack::evidence::{
     ConflictLevel, Constructor, LikelihoodIssue, MassFunction, Refining,
 };
 use evitrack::track::{
-    Estimator, FeatureIssue, SelectionPolicy, TrackSettings, TrackedFeature, Tracker, TrackerModel,
+    Estimator, FeatureIssue, FrameEstimate, GroupError, SelectionPolicy, TrackSettings,
+    TrackedFeature, Tracker, TrackerModel,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -273,21 +274,27 @@ fn pairwise_conflicts_equal_the_general_combination() {
 #[test]
 fn corrupted_feature_is_left_out_and_estimate_stays_close() {
     let feats = [X, Y, X_COARSE, Y_COARSE, SUM, DIFF];
-    let threshold = 2.0;
     let pts = points(60, 23);
     for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        let everything = tracker(
+            &feats,
+            TrackSettings {
+                constructor,
+                ..TrackSettings::default()
+            },
+        );
+        // The threshold applies to group levels too: just above the clean frames' levels.
+        let threshold = 1.05
+            * pts
+                .iter()
+                .map(|&p| everything.full_conflict_level(&frame(&feats, p)).unwrap())
+                .fold(0.0f64, f64::max);
+        assert!(threshold > 0.0 && threshold.is_finite());
         let t = tracker(
             &feats,
             TrackSettings {
                 constructor,
                 conflict_threshold: ConflictLevel::Finite(threshold),
-                ..TrackSettings::default()
-            },
-        );
-        let everything = tracker(
-            &feats,
-            TrackSettings {
-                constructor,
                 ..TrackSettings::default()
             },
         );
@@ -531,4 +538,122 @@ fn uncertainty_reflects_the_evidence() {
     assert!(uv.radius > 5.0 && uv.spread > 4.0, "{uv:?}");
     let s: f64 = sharp.plausibility.iter().sum();
     assert!((s - 1.0).abs() < 1e-12);
+}
+
+#[test]
+fn a_group_beyond_the_threshold_is_not_combined_though_every_pair_is_within() {
+    let feats = [X, Y, X_COARSE, Y_COARSE, SUM, DIFF];
+    let open = tracker(&feats, TrackSettings::default());
+    let mut tested = 0;
+    for p in points(20, 9) {
+        let lik = frame(&feats, p);
+        let pairs = open.pairwise_conflicts(&lik).unwrap();
+        let worst_pair = pairs
+            .iter()
+            .flatten()
+            .flatten()
+            .fold(0.0f64, |a, &b| a.max(b));
+        let full = open.full_conflict_level(&lik).unwrap();
+        if full <= 1.2 * worst_pair {
+            continue;
+        }
+        tested += 1;
+        // Every pair is an edge of the graph, but the whole group is above the threshold.
+        let threshold = 0.5 * (worst_pair + full);
+        let t = tracker(
+            &feats,
+            TrackSettings {
+                conflict_threshold: ConflictLevel::Finite(threshold),
+                ..TrackSettings::default()
+            },
+        );
+        let est = t.track(&lik).unwrap();
+        assert!(
+            est.group.len() < feats.len() && est.group.len() > 1,
+            "{:?}",
+            est.group
+        );
+        assert!(est.conflict_level.unwrap() <= threshold);
+        assert_eq!(est.full_conflict_level, Some(full));
+        assert_eq!(est.group.len() + est.flags.excluded.len(), feats.len());
+        assert!(!est.flags.fallback);
+    }
+    assert!(
+        tested >= 5,
+        "only {tested} frames had a group level above every pair's"
+    );
+}
+
+/// The triangle with soft measurements and the given validation error per pair of features.
+fn weighed_triangle(errors: [f64; 3]) -> FrameEstimate {
+    let poses = vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
+    let assignments = [[0, 0, 1], [0, 1, 0], [1, 0, 0]];
+    let features = assignments
+        .iter()
+        .map(|a| TrackedFeature {
+            refining: Refining::from_assignment(2, a).unwrap(),
+            validation_error: None,
+        })
+        .collect();
+    let groups = [vec![0, 1], vec![0, 2], vec![1, 2]];
+    let group_errors: Vec<GroupError> = groups
+        .iter()
+        .zip(errors)
+        .map(|(g, error)| GroupError {
+            features: g.clone(),
+            error,
+        })
+        .collect();
+    let model = TrackerModel::new(poses, features)
+        .unwrap()
+        .with_group_errors(&group_errors)
+        .unwrap();
+    let lik = vec![Some(vec![1.0, 0.3]); 3];
+    let open = Tracker::new(model.clone(), TrackSettings::default().check().unwrap()).unwrap();
+    let pair = open.pairwise_conflicts(&lik).unwrap()[0][1].unwrap();
+    let full = open.full_conflict_level(&lik).unwrap();
+    assert!(full > 1.5 * pair, "{pair} {full}");
+    // Pairs within the threshold, the three together beyond it: three alternatives.
+    let settings = TrackSettings {
+        selection: SelectionPolicy::Splitting { min_size: 2 },
+        conflict_threshold: ConflictLevel::Finite(0.5 * (pair + full)),
+        ..TrackSettings::default()
+    };
+    let t = Tracker::new(model, settings.check().unwrap()).unwrap();
+    t.track(&lik).unwrap()
+}
+
+#[test]
+fn splitting_weighs_alternatives_by_their_reliability() {
+    let close = |a: [f64; 2], b: [f64; 2]| dist(a, b) < 1e-6;
+    for best in 0..3 {
+        let mut errors = [1e12; 3];
+        errors[best] = 0.1;
+        let est = weighed_triangle(errors);
+        assert_eq!(est.alternatives.len(), 3);
+        // The nearly unreliable alternatives barely move the most reliable one's estimate.
+        let chosen = &est.alternatives[best];
+        assert!(close(est.estimate.unwrap(), chosen.estimate), "{est:?}");
+        assert_eq!(chosen.reliability, Some(1.0));
+        assert_eq!(est.conflict_level, Some(chosen.conflict_level));
+        assert_eq!(est.group, vec![0, 1, 2]);
+    }
+    // Equal reliabilities: the symmetric combination, between the alternatives.
+    let est = weighed_triangle([0.5; 3]);
+    let e = est.estimate.unwrap();
+    assert!(
+        (e[0] - e[1]).abs() < 1e-12 && e[0] > 0.05 && e[0] < 0.5,
+        "{e:?}"
+    );
+    // Halving one alternative's error pulls the estimate towards it.
+    let towards = weighed_triangle([0.5, 0.25, 0.5]).estimate.unwrap();
+    assert!(
+        towards[0] > e[0] && towards[1] < e[1],
+        "{towards:?} vs {e:?}"
+    );
+    // Without reliabilities the first alternative is the estimate, as before.
+    let (t, lik) = triangle(SelectionPolicy::Splitting { min_size: 2 });
+    let est = t.track(&lik).unwrap();
+    assert!(est.alternatives.iter().all(|a| a.reliability.is_none()));
+    assert_eq!(est.estimate, Some(est.alternatives[0].estimate));
 }

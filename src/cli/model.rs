@@ -14,7 +14,7 @@ use evitrack::estimator::{
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
-use evitrack::track::{Estimator, SelectionPolicy, TrackSettings};
+use evitrack::track::{Estimator, SelectionPolicy, ThresholdRule, TrackSettings};
 
 /// Tracker settings given on the command line; what is left out keeps its value.
 #[derive(Debug, Args)]
@@ -97,6 +97,10 @@ pub struct TrainArgs {
     /// With --validation, keep the --threshold given instead of learning it.
     #[arg(long, requires = "validation")]
     keep_threshold: bool,
+    /// With --validation, learn the threshold as this quantile of the validation motion's levels
+    /// of conflict (e.g. 0.99) instead of the paper's error-weighted mean.
+    #[arg(long, requires = "validation", conflicts_with = "keep_threshold")]
+    threshold_quantile: Option<f64>,
     /// HMM state counts: one for every feature (`3`) or one per feature (`2,2,2,3,3,2`).
     /// Default: the paper's, 2,2,2,3,3,2 for the size functions then 3,2 for the barycentre.
     #[arg(long)]
@@ -271,10 +275,11 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         if args.states.is_some()
             || args.tune_bic.is_some()
             || args.keep_threshold
+            || args.threshold_quantile.is_some()
             || args.track.given()
         {
             bail!(
-                "--states, --tune-bic, --keep-threshold and the tracker options apply to \
+                "--states, --tune-bic, --keep-threshold, --threshold-quantile and the tracker options apply to \
                  --method evidential only"
             );
         }
@@ -326,6 +331,9 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         model,
         track: args.track.apply(&TrackSettings::default())?,
         learn_threshold: validation.is_some() && !args.keep_threshold,
+        threshold_rule: args
+            .threshold_quantile
+            .map_or(ThresholdRule::ErrorWeighted, ThresholdRule::Quantile),
     };
     let estimator = Evidential::fit(&settings, &training)?;
     std::fs::write(&args.out, estimator.to_json()?)

@@ -86,7 +86,8 @@ fn error_table(summaries: &[&RunSummary]) -> Table {
         "max",
         "paper",
         "no est.",
-        "flagged",
+        "left out",
+        "fallback",
     ]);
     for s in summaries {
         for m in &s.methods {
@@ -104,11 +105,65 @@ fn error_table(summaries: &[&RunSummary]) -> Table {
                 fmt_mm(m.error.map(|e| e.max)),
                 fmt_mm(s.paper_error.filter(|_| evidential.is_some())),
                 format!("{}/{}", m.frames_without_estimate, s.frames),
-                m.frames_flagged.to_string(),
+                m.frames_with_features_left_out.to_string(),
+                m.frames_fallback.to_string(),
             ]);
         }
     }
     table
+}
+
+/// With faults: each method's error on clean and on corrupted frames, how well its detection
+/// score tells them apart, and how many of the features it left out were the corrupted ones.
+/// `None` when no run had faults.
+fn fault_table(summaries: &[&RunSummary]) -> Option<Table> {
+    let mut table = Table::new([
+        "scenario",
+        "method",
+        "corrupted",
+        "clean mean",
+        "corr. mean",
+        "ratio",
+        "corr. no est.",
+        "AUC",
+        "left-out prec.",
+        "recall",
+    ]);
+    let share = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3}"));
+    let mut any = false;
+    for s in summaries {
+        for m in &s.methods {
+            let Some(f) = &m.faults else { continue };
+            any = true;
+            let clean = f.error_clean.map(|e| e.mean);
+            let corrupted = f.error_corrupted.map(|e| e.mean);
+            table.push([
+                s.scenario.clone(),
+                m.method.clone(),
+                format!(
+                    "{}/{}",
+                    f.corrupted_frames,
+                    f.corrupted_frames + f.clean_frames
+                ),
+                fmt_mm(clean),
+                fmt_mm(corrupted),
+                share(clean.zip(corrupted).map(|(a, b)| b / a)),
+                f.corrupted_without_estimate.to_string(),
+                share(f.detection_auc),
+                share(f.left_out_precision),
+                share(f.left_out_recall),
+            ]);
+        }
+    }
+    any.then_some(table)
+}
+
+/// Prints the error table, and the fault table when runs had faults.
+fn print_tables(summaries: &[&RunSummary]) {
+    println!("{}", error_table(summaries));
+    if let Some(faults) = fault_table(summaries) {
+        println!("{faults}");
+    }
 }
 
 /// Progress bars for the stages of runs, one line per variant.
@@ -168,7 +223,7 @@ pub fn run(args: &RunArgs) -> Result<ExitCode> {
     let output = output.with_context(|| format!("running scenario `{}`", scenario.name()))?;
     let dir = args.out.join(scenario.name());
     let written = write_run(&dir, &output)?;
-    println!("{}", error_table(&[&output.summary]));
+    print_tables(&[&output.summary]);
     for m in &output.summary.methods {
         if m.per_motion.len() > 1 {
             for (label, stats) in &m.per_motion {
@@ -280,7 +335,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
 fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let refs: Vec<&RunSummary> = summaries.iter().collect();
-    println!("{}", error_table(&refs));
+    print_tables(&refs);
     let json_path = out.join(json_name);
     std::fs::write(&json_path, serde_json::to_string_pretty(summaries)? + "\n")
         .with_context(|| format!("writing {}", json_path.display()))?;
@@ -301,15 +356,25 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
         "paper",
         "frames",
         "without_estimate",
-        "flagged",
+        "with_missing_features",
+        "with_features_left_out",
+        "fallback",
         "fit_seconds",
         "expected_max_mean",
+        "corrupted_frames",
+        "mean_clean",
+        "mean_corrupted",
+        "corrupted_without_estimate",
+        "detection_auc",
+        "left_out_precision",
+        "left_out_recall",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     for s in summaries {
         for m in &s.methods {
             let evidential = evidential_of(s, m);
             let states = states_text(evidential, " ");
+            let f = m.faults.as_ref();
             let expected = match evidential {
                 Some(_) => s.expect.max_mean_error,
                 None => s
@@ -332,9 +397,18 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
                 num(s.paper_error.filter(|_| evidential.is_some())),
                 s.frames.to_string(),
                 m.frames_without_estimate.to_string(),
-                m.frames_flagged.to_string(),
+                m.frames_with_missing_features.to_string(),
+                m.frames_with_features_left_out.to_string(),
+                m.frames_fallback.to_string(),
                 m.fit_seconds.to_string(),
                 num(expected),
+                f.map_or(String::new(), |f| f.corrupted_frames.to_string()),
+                num(f.and_then(|f| f.error_clean).map(|e| e.mean)),
+                num(f.and_then(|f| f.error_corrupted).map(|e| e.mean)),
+                f.map_or(String::new(), |f| f.corrupted_without_estimate.to_string()),
+                num(f.and_then(|f| f.detection_auc)),
+                num(f.and_then(|f| f.left_out_precision)),
+                num(f.and_then(|f| f.left_out_recall)),
             ])?;
         }
     }

@@ -153,6 +153,7 @@ impl PoseEstimator for Centre {
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
         let (_, missing) = frame_values(features, self.file.feature_names.len())?;
         Ok(PoseEstimate {
+            detection_score: None,
             pose: Some(self.centre),
             uncertainty_radius: None,
             group: None,

@@ -13,9 +13,12 @@ use crate::model::{
 };
 use crate::report::distance;
 use crate::track::{
-    learn_conflict_threshold, FrameEstimate, TrackError, TrackSettings, TrackedFeature, Tracker,
-    TrackerModel,
+    FrameEstimate, GroupError, SelectionPolicy, ThresholdRule, TrackError, TrackSettings,
+    TrackedFeature, Tracker, TrackerModel,
 };
+
+/// The splitting policy measures every group's validation error (2ⁿ groups): features at most.
+pub const MAX_FEATURES_GROUP_ERRORS: usize = 10;
 
 /// How the evidential tracker is trained and run.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -26,6 +29,8 @@ pub struct EvidentialSettings {
     pub track: TrackSettings,
     /// Learn the conflict threshold on the validation motion (§4.3).
     pub learn_threshold: bool,
+    /// How it is learned.
+    pub threshold_rule: ThresholdRule,
 }
 
 /// The evidential tracker of the paper, fitted: its complete model and the tracker built on it.
@@ -81,46 +86,64 @@ impl Evidential {
 
         let mut track = settings.track.clone();
         let mut validation_errors = None;
+        let mut group_errors = Vec::new();
         let mut threshold_learned = false;
         if let Some(validation) = &data.validation {
             // One tracker combining every compatible feature, with no fallback ranking yet.
             let open = TrackSettings {
                 conflict_threshold: crate::evidence::ConflictLevel::Infinite,
+                selection: SelectionPolicy::LargestSubset,
                 ..settings.track.clone()
             };
-            let tracker = build_tracker(&frames, None, &open)?;
-            let mut per_feature = Vec::with_capacity(frames.n_features());
-            for i in 0..frames.n_features() {
-                let only_i: Vec<Vec<Option<f64>>> = validation
-                    .rows
-                    .iter()
+            let tracker = build_tracker(&frames, None, &[], &open)?;
+            let group_error = |mask: u32| -> Result<f64, EstimatorError> {
+                let rows: Vec<Vec<Option<f64>>> = (validation.rows.iter())
                     .map(|row| {
                         (0..row.len())
-                            .map(|j| if j == i { row[j] } else { None })
+                            .map(|j| row[j].filter(|_| mask >> j & 1 == 1))
                             .collect()
                     })
                     .collect();
-                let estimates = track_rows(&frames, &tracker, &only_i)?;
-                per_feature.push(validation_error(
+                let estimates = track_rows(&frames, &tracker, &rows)?;
+                Ok(validation_error(
                     &estimates,
                     validation.poses,
                     data.missing_penalty,
-                ));
-            }
-            validation_errors = Some(per_feature);
-            if settings.learn_threshold {
-                let estimates = track_rows(&frames, &tracker, validation.rows)?;
-                let mut levels = Vec::new();
-                let mut errors = Vec::new();
-                for ((row, estimate), t) in
-                    validation.rows.iter().zip(&estimates).zip(validation.poses)
-                {
-                    if let Some(p) = estimate.estimate {
-                        levels.push(tracker.full_conflict_level(&frames.likelihoods(row)?)?);
-                        errors.push(distance(p, *t));
+                ))
+            };
+            let n = frames.n_features();
+            validation_errors = Some(
+                (0..n)
+                    .map(|i| group_error(1 << i))
+                    .collect::<Result<_, _>>()?,
+            );
+            if let SelectionPolicy::Splitting { min_size } = settings.track.selection {
+                if n > MAX_FEATURES_GROUP_ERRORS {
+                    return Err(EstimatorError::Training(format!(
+                        "the splitting policy learns a reliability for every group of features, \
+                         which takes at most {MAX_FEATURES_GROUP_ERRORS} features (this model has {n}): \
+                         use fewer features or another selection policy"
+                    )));
+                }
+                for mask in 1u32..1 << n {
+                    if mask.count_ones() as usize >= min_size.max(2) {
+                        group_errors.push(GroupError {
+                            features: (0..n).filter(|j| mask >> j & 1 == 1).collect(),
+                            error: group_error(mask)?,
+                        });
                     }
                 }
-                track.conflict_threshold = learn_conflict_threshold(&levels, &errors)?;
+            }
+            if settings.learn_threshold {
+                // The level of the group combined with no threshold, and its error.
+                let estimates = track_rows(&frames, &tracker, validation.rows)?;
+                let (levels, errors): (Vec<f64>, Vec<f64>) = estimates
+                    .iter()
+                    .zip(validation.poses)
+                    .filter_map(|(e, t)| Some((e.conflict_level?, distance(e.estimate?, *t))))
+                    .unzip();
+                track.conflict_threshold =
+                    settings.threshold_rule.check()?.learn(&levels, &errors)?;
                 threshold_learned = true;
             }
         }
@@ -130,6 +153,7 @@ impl Evidential {
             track,
             threshold_learned,
             validation_errors,
+            group_errors,
             provenance: data.provenance.clone(),
         })?;
         Self::from_model(model)
@@ -143,6 +167,7 @@ impl Evidential {
         let tracker = build_tracker(
             model.frames(),
             model.validation_errors(),
+            model.group_errors(),
             model.track_settings(),
         )?;
         let names = model
@@ -221,6 +246,7 @@ impl PoseEstimator for Evidential {
             uncertainty_radius: frame.uncertainty.map(|u| u.radius),
             group: Some(frame.group),
             conflict_level: frame.conflict_level,
+            detection_score: frame.full_conflict_level,
             flags: EstimateFlags {
                 missing: frame.flags.missing().collect(),
                 excluded: frame.flags.excluded,
@@ -239,10 +265,12 @@ impl PoseEstimator for Evidential {
     }
 }
 
-/// The tracker's view of trained frames, with these settings and fallback ranking.
+/// The tracker's view of trained frames, with these settings, fallback ranking and group
+/// reliabilities.
 fn build_tracker(
     frames: &FeatureFrames,
     validation_errors: Option<&[f64]>,
+    group_errors: &[GroupError],
     settings: &TrackSettings,
 ) -> Result<Tracker, EstimatorError> {
     let features = frames
@@ -265,7 +293,8 @@ fn build_tracker(
         }
         .into());
     }
-    let model = TrackerModel::new(frames.sample_poses().to_vec(), features)?;
+    let model = TrackerModel::new(frames.sample_poses().to_vec(), features)?
+        .with_group_errors(group_errors)?;
     Ok(Tracker::new(model, settings.clone().check()?)?)
 }
 
@@ -335,6 +364,7 @@ mod tests {
             estimate,
             group: vec![0],
             conflict_level: Some(0.0),
+            full_conflict_level: Some(0.0),
             uncertainty: None,
             plausibility: Vec::new(),
             alternatives: Vec::new(),

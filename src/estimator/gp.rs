@@ -308,16 +308,22 @@ impl Gp {
         load_file(path, Self::from_json)
     }
 
-    /// Predictive mean (mm) and the RMS over x and y of the predictive standard deviation (mm)
-    /// for a complete row of feature values.
-    fn predict(&self, values: &[f64]) -> ([f64; 2], f64) {
+    /// Predictive mean (mm), the RMS over x and y of the predictive standard deviation (mm) and
+    /// the distance to the nearest sample in the kernel's scaled feature space, for a complete
+    /// row of feature values.
+    fn predict(&self, values: &[f64]) -> ([f64; 2], f64, f64) {
         let (f, h, file) = (&self.factor, &self.file.hyperparameters, &self.file);
         let query: Vec<f64> = (values.iter().enumerate())
             .map(|(d, &x)| file.standardisation.apply(d, x) / h.length_scales[d])
             .collect();
         let sf2 = h.signal_std * h.signal_std;
+        let mut nearest = f64::INFINITY;
         let kstar: Vec<f64> = (f.inputs.chunks_exact(values.len()))
-            .map(|row| sf2 * (-0.5 * squared_distance(row, &query)).exp())
+            .map(|row| {
+                let d2 = squared_distance(row, &query);
+                nearest = nearest.min(d2);
+                sf2 * (-0.5 * d2).exp()
+            })
             .collect();
         let mut mean = [0.0; 2];
         for (k, a) in kstar.iter().zip(&f.alpha) {
@@ -341,6 +347,7 @@ impl Gp {
         (
             pose,
             std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
+            nearest.sqrt(),
         )
     }
 }
@@ -360,14 +367,15 @@ impl PoseEstimator for Gp {
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
         let (values, missing) = frame_values(features, self.file.feature_names.len())?;
-        let (pose, radius) = if missing.is_empty() {
+        let (pose, radius, nearest) = if missing.is_empty() {
             let values: Vec<f64> = values.iter().map(|v| v.unwrap_or(0.0)).collect();
-            let (pose, std) = self.predict(&values);
-            (Some(pose), Some(std * DISC_90))
+            let (pose, std, nearest) = self.predict(&values);
+            (Some(pose), Some(std * DISC_90), Some(nearest))
         } else {
-            (None, None)
+            (None, None, None)
         };
         Ok(PoseEstimate {
+            detection_score: nearest,
             pose,
             uncertainty_radius: radius,
             group: None,

@@ -393,6 +393,7 @@ impl PoseEstimator for Knn {
             (Some(mean), Some((spread / total).sqrt()))
         };
         Ok(PoseEstimate {
+            detection_score: neighbours.first().map(|n| n.1),
             pose,
             uncertainty_radius: radius,
             group: None,

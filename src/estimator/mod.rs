@@ -13,7 +13,7 @@ mod gp;
 mod knn;
 
 pub use centre::{Centre, CentreSettings};
-pub use evidential::{Evidential, EvidentialSettings};
+pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
 
@@ -112,6 +112,10 @@ pub struct PoseEstimate {
     pub group: Option<Vec<usize>>,
     /// Level of conflict of the combined features, for evidential methods.
     pub conflict_level: Option<f64>,
+    /// How unusual the frame's measurements look to the method, higher meaning more likely
+    /// corrupted (+∞: impossible): the level of conflict of every usable feature for the
+    /// evidential tracker, the standardised distance to the nearest sample for k-NN and the GP.
+    pub detection_score: Option<f64>,
     /// What deserves attention in this frame.
     pub flags: EstimateFlags,
 }

@@ -20,6 +20,7 @@ use std::time::Instant;
 use crate::estimator::{
     EstimatorError, EstimatorSettings, EvidentialSettings, Labelled, PoseEstimator, TrainingSet,
 };
+use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
 use crate::model::Provenance;
 use crate::report::{
@@ -112,7 +113,10 @@ pub fn run(
         None => None,
     };
 
-    // The test frames: simulated and their features extracted once, for every method.
+    // The test frames: simulated and their features extracted once, for every method; then
+    // the faults, if any, each test motion on its own stream.
+    let plan = scenario.fault_plan();
+    let scales = FeatureScale::of_rows(&sample.rows, names.len());
     let mut tests = Vec::with_capacity(s.tests.len());
     for (k, motion) in s.tests.iter().enumerate() {
         let label = format!("test{k}:{}", motion.name());
@@ -126,7 +130,22 @@ pub fn run(
             progress,
             &mut timings,
         )?;
-        tests.push((label, truth, times, rows));
+        let (rows, labels) = if plan.is_empty() {
+            (rows, None)
+        } else {
+            let clock = Instant::now();
+            let data = bench.dataset(&s.sim, motion, seed, &mut |_, _| {})?;
+            let corrupted = plan.apply(
+                seed::for_faults(master, k),
+                data.images(),
+                &rows,
+                set,
+                &scales,
+            );
+            timings.features += clock.elapsed().as_secs_f64();
+            (Arc::new(corrupted.rows), Some(corrupted.labels))
+        };
+        tests.push((label, truth, times, rows, labels));
     }
 
     // Every method fits on the same training set and estimates the same feature rows.
@@ -139,6 +158,7 @@ pub fn run(
             },
             track: s.track.clone(),
             learn_threshold: s.learn_threshold,
+            threshold_rule: s.threshold_rule,
         },
         knn: s.knn.clone(),
         gp: s.gp.clone(),
@@ -170,7 +190,7 @@ pub fn run(
         let clock = Instant::now();
         let mut method_records = Vec::new();
         let mut per_motion = Vec::with_capacity(tests.len());
-        for (label, truth, times, rows) in &tests {
+        for (label, truth, times, rows, faults) in &tests {
             let mut errors = Vec::new();
             for (i, row) in rows.iter().enumerate() {
                 let estimate =
@@ -189,6 +209,10 @@ pub fn run(
                     &estimate,
                     &names,
                 );
+                let record = match faults {
+                    Some(labels) => record.with_faults(labels[i].clone()),
+                    None => record,
+                };
                 errors.extend(record.error);
                 method_records.push(record);
             }

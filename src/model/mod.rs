@@ -34,7 +34,7 @@ pub use settings::{ModelSettings, StateCounts, Tuning};
 use crate::evidence::EvidenceError;
 use crate::features::FeatureConfig;
 use crate::hmm::HmmError;
-use crate::track::TrackSettings;
+use crate::track::{GroupError, TrackSettings};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use thiserror::Error;
@@ -219,6 +219,9 @@ pub struct ModelParts {
     pub threshold_learned: bool,
     /// Each feature's own mean error on a validation motion (ranks the fallback), if measured.
     pub validation_errors: Option<Vec<f64>>,
+    /// Each group's mean error on the validation motion (the splitting policy's reliabilities;
+    /// empty when not measured).
+    pub group_errors: Vec<GroupError>,
     /// Where the model came from.
     pub provenance: Provenance,
 }
@@ -261,6 +264,13 @@ impl EvidentialModel {
         if let Some(e) = &parts.validation_errors {
             check_validation_errors(e, parts.frames.n_features())?;
         }
+        for g in &parts.group_errors {
+            g.check(parts.frames.n_features())
+                .map_err(|reason| ModelError::InvalidInput {
+                    what: "group errors",
+                    reason: format!("group {:?}: {reason}", g.features),
+                })?;
+        }
         Ok(Self { parts })
     }
 
@@ -302,6 +312,11 @@ impl EvidentialModel {
     /// Per-feature validation errors, if measured.
     pub fn validation_errors(&self) -> Option<&[f64]> {
         self.parts.validation_errors.as_deref()
+    }
+
+    /// Per-group validation errors (empty when not measured).
+    pub fn group_errors(&self) -> &[GroupError] {
+        &self.parts.group_errors
     }
 
     /// Where the model came from.

@@ -3,7 +3,8 @@
 //! Layout (version 2): `format_version`, `method` (`"evidential"`), `provenance` (`crate_version`,
 //! `scenario`, `seed`), `feature_config` (the features' settings, or null), `track` (constructor,
 //! conflict threshold (a number or `"inf"`), selection, estimator, uncertainty share),
-//! `threshold_learned`, `validation_errors` (one per feature, or null), `sample_poses` ([x, y] per
+//! `threshold_learned`, `validation_errors` (one per feature, or null), `group_errors` (optional:
+//! `features` and `error` of each group, the splitting policy's reliabilities), `sample_poses` ([x, y] per
 //! sample) and `features` (per feature: `name`, `requested_states`, `hmm` (initial, transitions,
 //! means, variances), `log_likelihood`, `n_observations`, `states` (HMM state of every sample
 //! pose), `removed_states`, `imputed`). The frame of a feature is its HMM states minus the removed
@@ -14,7 +15,7 @@ use super::frames::{check_names, check_poses};
 use super::{EvidentialModel, FeatureFrames, FeatureModel, ModelError, ModelParts, Provenance};
 use crate::features::FeatureConfig;
 use crate::hmm::GaussianHmm;
-use crate::track::TrackSettings;
+use crate::track::{GroupError, TrackSettings};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -34,6 +35,8 @@ struct ModelFile {
     track: TrackSettings,
     threshold_learned: bool,
     validation_errors: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    group_errors: Vec<GroupError>,
     sample_poses: Vec<[f64; 2]>,
     features: Vec<FeatureRecord>,
 }
@@ -90,6 +93,7 @@ impl EvidentialModel {
             track: parts.track.clone(),
             threshold_learned: parts.threshold_learned,
             validation_errors: parts.validation_errors.clone(),
+            group_errors: parts.group_errors.clone(),
             sample_poses: parts.frames.sample_poses.clone(),
             features: parts
                 .frames
@@ -142,6 +146,7 @@ impl EvidentialModel {
             track: file.track,
             threshold_learned: file.threshold_learned,
             validation_errors: file.validation_errors,
+            group_errors: file.group_errors,
             provenance: file.provenance,
         })
         .map_err(|e| ModelError::Corrupted(e.to_string()))

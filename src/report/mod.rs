@@ -9,7 +9,8 @@ mod table;
 pub use files::write_run;
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
-    write_frames_csv, EvidentialSummary, FrameRecord, MethodSummary, RunSummary, Timings,
+    detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
+    RunSummary, Timings,
 };
 pub use table::Table;
 

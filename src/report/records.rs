@@ -4,8 +4,9 @@
 use serde::{Deserialize, Serialize};
 
 use super::{distance, ErrorStats};
-use crate::estimator::PoseEstimate;
+use crate::estimator::{EstimateFlags, PoseEstimate};
 use crate::evidence::ConflictLevel;
+use crate::faults::FrameFaults;
 use crate::model::EvidentialModel;
 use crate::scenario::{Expectations, MethodExpectations};
 
@@ -32,8 +33,14 @@ pub struct FrameRecord {
     pub conflict_level: Option<f64>,
     /// Radius holding the method's stated share of its belief (mm).
     pub uncertainty_radius: Option<f64>,
+    /// How unusual the frame looked to the method (see [`PoseEstimate::detection_score`]).
+    pub detection_score: Option<f64>,
     /// Missing features, fallback, no estimate: empty when the frame is clean.
     pub flags: String,
+    /// The flags behind `flags`, by feature index.
+    pub flag_set: EstimateFlags,
+    /// Ground truth of the faults injected into this frame (`None` in a run without faults).
+    pub faults: Option<FrameFaults>,
 }
 
 impl FrameRecord {
@@ -59,14 +66,31 @@ impl FrameRecord {
             group: estimate.group.clone(),
             conflict_level: estimate.conflict_level,
             uncertainty_radius: estimate.uncertainty_radius,
+            detection_score: estimate.detection_score,
             flags: estimate.flag_words(names),
+            flag_set: estimate.flags.clone(),
+            faults: None,
         }
+    }
+
+    /// The same record with the ground truth of its frame's faults.
+    pub fn with_faults(self, faults: FrameFaults) -> Self {
+        Self {
+            faults: Some(faults),
+            ..self
+        }
+    }
+
+    /// Whether the frame's measurements were corrupted by an injected fault.
+    pub fn corrupted(&self) -> bool {
+        self.faults.as_ref().is_some_and(FrameFaults::corrupted)
     }
 }
 
 /// Writes frame records as CSV (the `frames.csv` of a run, and what `track` prints): one row per
 /// frame and method, the combined group as feature names joined by `+`, empty cells for missing
-/// values.
+/// values; the last two columns are the ground truth of injected faults (the faults that struck,
+/// the features they changed, or `frame` for a dropped frame), empty without faults.
 pub fn write_frames_csv<W: std::io::Write>(
     writer: W,
     records: &[FrameRecord],
@@ -87,15 +111,24 @@ pub fn write_frames_csv<W: std::io::Write>(
         "conflict_level",
         "uncertainty_radius",
         "flags",
+        "detection_score",
+        "faults",
+        "changed_features",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
-    for r in records {
-        let group: Vec<&str> = r
-            .group
-            .iter()
-            .flatten()
+    let joined = |list: &[usize]| {
+        list.iter()
             .map(|&g| names[g].as_str())
-            .collect();
+            .collect::<Vec<_>>()
+            .join("+")
+    };
+    for r in records {
+        let group = r.group.as_deref().map(joined).unwrap_or_default();
+        let (faults, changed) = match &r.faults {
+            Some(f) if f.dropped => (f.faults.join("+"), "frame".to_string()),
+            Some(f) => (f.faults.join("+"), joined(&f.changed)),
+            None => (String::new(), String::new()),
+        };
         csv.write_record([
             r.method.clone(),
             r.motion.clone(),
@@ -106,10 +139,13 @@ pub fn write_frames_csv<W: std::io::Write>(
             num(r.estimate.map(|p| p[0])),
             num(r.estimate.map(|p| p[1])),
             num(r.error),
-            group.join("+"),
+            group,
             num(r.conflict_level),
             num(r.uncertainty_radius),
             r.flags.clone(),
+            num(r.detection_score),
+            faults,
+            changed,
         ])?;
     }
     csv.flush()?;
@@ -137,14 +173,21 @@ pub struct MethodSummary {
     pub per_motion: Vec<(String, Option<ErrorStats>)>,
     /// Test frames without an estimate.
     pub frames_without_estimate: usize,
-    /// Test frames with any flag (missing features, features left out, fallback, no estimate).
-    pub frames_flagged: usize,
+    /// Test frames with a missing feature.
+    pub frames_with_missing_features: usize,
+    /// Test frames where the method left usable features out (the conflict graph's rejections,
+    /// fallbacks included).
+    pub frames_with_features_left_out: usize,
+    /// Test frames where no group was eligible and one feature was used alone.
+    pub frames_fallback: usize,
     /// Mean number of features combined per frame, for methods that choose them.
     pub mean_group_size: Option<f64>,
     /// Fitting (validation included), in seconds.
     pub fit_seconds: f64,
     /// Estimating every test frame, in seconds.
     pub track_seconds: f64,
+    /// Clean against corrupted frames, in a run with faults.
+    pub faults: Option<FaultSummary>,
 }
 
 impl MethodSummary {
@@ -162,18 +205,120 @@ impl MethodSummary {
             .iter()
             .filter_map(|r| r.group.as_ref().map(Vec::len))
             .collect();
+        let count =
+            |test: fn(&EstimateFlags) -> bool| records.iter().filter(|r| test(&r.flag_set)).count();
         Self {
             method: method.to_string(),
             error: ErrorStats::from_errors(&errors),
             per_motion,
             frames_without_estimate: records.len() - with_estimate,
-            frames_flagged: records.iter().filter(|r| !r.flags.is_empty()).count(),
+            frames_with_missing_features: count(|f| !f.missing.is_empty()),
+            frames_with_features_left_out: count(|f| !f.excluded.is_empty()),
+            frames_fallback: count(|f| f.fallback),
             mean_group_size: (!groups.is_empty())
                 .then(|| groups.iter().sum::<usize>() as f64 / records.len().max(1) as f64),
             fit_seconds,
             track_seconds,
+            faults: FaultSummary::of(records),
         }
     }
+}
+
+/// How a method fared on the frames faults corrupted, against the clean ones.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FaultSummary {
+    /// Frames whose measurements a fault changed (or dropped).
+    pub corrupted_frames: usize,
+    /// The other frames.
+    pub clean_frames: usize,
+    /// Errors on the clean frames with an estimate.
+    pub error_clean: Option<ErrorStats>,
+    /// Errors on the corrupted frames with an estimate.
+    pub error_corrupted: Option<ErrorStats>,
+    /// Corrupted frames without an estimate.
+    pub corrupted_without_estimate: usize,
+    /// Area under the ROC curve of the detection score against "frame corrupted" (a frame
+    /// without a score ranks as +∞); `None` when the method gives no score or a class is empty.
+    pub detection_auc: Option<f64>,
+    /// Share of the features left out that a fault had changed (pooled over frames).
+    pub left_out_precision: Option<f64>,
+    /// Share of the changed features still present that were left out (pooled over frames).
+    pub left_out_recall: Option<f64>,
+}
+
+impl FaultSummary {
+    /// The summary of one method's records; `None` when they carry no fault labels.
+    pub fn of(records: &[FrameRecord]) -> Option<Self> {
+        if records.iter().all(|r| r.faults.is_none()) {
+            return None;
+        }
+        let errors = |corrupted: bool| {
+            let e: Vec<f64> = records
+                .iter()
+                .filter(|r| r.corrupted() == corrupted)
+                .filter_map(|r| r.error)
+                .collect();
+            ErrorStats::from_errors(&e)
+        };
+        let corrupted_frames = records.iter().filter(|r| r.corrupted()).count();
+        let (mut left_out, mut hits, mut changed_present) = (0usize, 0usize, 0usize);
+        for r in records {
+            let Some(f) = &r.faults else { continue };
+            let excluded = &r.flag_set.excluded;
+            left_out += excluded.len();
+            hits += excluded.iter().filter(|i| f.changed.contains(i)).count();
+            changed_present += (f.changed.iter())
+                .filter(|i| !r.flag_set.missing.contains(i))
+                .count();
+        }
+        let any_groups = records.iter().any(|r| r.group.is_some());
+        let share =
+            |num: usize, den: usize| (any_groups && den > 0).then(|| num as f64 / den as f64);
+        Some(Self {
+            corrupted_frames,
+            clean_frames: records.len() - corrupted_frames,
+            error_clean: errors(false),
+            error_corrupted: errors(true),
+            corrupted_without_estimate: (records.iter())
+                .filter(|r| r.corrupted() && r.estimate.is_none())
+                .count(),
+            detection_auc: detection_auc(records),
+            left_out_precision: share(hits, left_out),
+            left_out_recall: share(hits, changed_present),
+        })
+    }
+}
+
+/// Area under the ROC curve of the records' detection scores against "corrupted" (ties count
+/// one half; a missing score is +∞); `None` without any score or without both classes.
+pub fn detection_auc(records: &[FrameRecord]) -> Option<f64> {
+    if records.iter().all(|r| r.detection_score.is_none()) {
+        return None;
+    }
+    let score = |r: &FrameRecord| r.detection_score.unwrap_or(f64::INFINITY);
+    let mut scored: Vec<(f64, bool)> = records.iter().map(|r| (score(r), r.corrupted())).collect();
+    let positives = scored.iter().filter(|s| s.1).count();
+    let negatives = scored.len() - positives;
+    if positives == 0 || negatives == 0 {
+        return None;
+    }
+    // Mann–Whitney: walk the scores in order, tied runs sharing their ranks.
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut wins = 0.0;
+    let mut negatives_below = 0usize;
+    let mut i = 0;
+    while i < scored.len() {
+        let j = i + scored[i..]
+            .iter()
+            .take_while(|s| s.0 == scored[i].0)
+            .count();
+        let tied_neg = scored[i..j].iter().filter(|s| !s.1).count();
+        let tied_pos = (j - i) - tied_neg;
+        wins += tied_pos as f64 * (negatives_below as f64 + 0.5 * tied_neg as f64);
+        negatives_below += tied_neg;
+        i = j;
+    }
+    Some(wins / (positives * negatives) as f64)
 }
 
 /// The evidential model of a run, in brief.
@@ -276,12 +421,31 @@ impl RunSummary {
                     ));
                 }
             }
+            let faults = m.faults.as_ref();
+            if let Some(limit) = limits.max_corrupted_mean_error {
+                match faults.and_then(|f| f.error_corrupted) {
+                    Some(stats) if stats.mean <= limit => {}
+                    found => missed.push(format!(
+                        "{} ({name}): mean error on corrupted frames {} exceeds the expected \
+                         maximum {limit} mm",
+                        self.scenario,
+                        found.map_or("(none measured)".into(), |s| format!("{:.4} mm", s.mean))
+                    )),
+                }
+            }
+            if let Some(limit) = limits.min_detection_auc {
+                match faults.and_then(|f| f.detection_auc) {
+                    Some(auc) if auc >= limit => {}
+                    found => missed.push(format!(
+                        "{} ({name}): detection AUC {} is below the expected minimum {limit}",
+                        self.scenario,
+                        found.map_or("(none measured)".into(), |a| format!("{a:.4}"))
+                    )),
+                }
+            }
         };
-        let top = MethodExpectations {
-            max_mean_error: self.expect.max_mean_error,
-            max_missing_share: self.expect.max_missing_share,
-        };
-        if top.max_mean_error.is_some() || top.max_missing_share.is_some() {
+        let top = self.expect.evidential();
+        if top.any() {
             check("evidential", &top);
         }
         for (name, limits) in &self.expect.methods {
@@ -301,10 +465,13 @@ mod tests {
             error: ErrorStats::from_errors(errors),
             per_motion: Vec::new(),
             frames_without_estimate: without,
-            frames_flagged: without,
+            frames_with_missing_features: 0,
+            frames_with_features_left_out: 0,
+            frames_fallback: 0,
             mean_group_size: None,
             fit_seconds: 0.0,
             track_seconds: 0.0,
+            faults: None,
         }
     }
 
@@ -319,7 +486,7 @@ mod tests {
             "knn".into(),
             MethodExpectations {
                 max_mean_error: Some(0.5),
-                max_missing_share: None,
+                ..MethodExpectations::default()
             },
         );
         expect

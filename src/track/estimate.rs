@@ -76,7 +76,6 @@ impl Tracker {
         usable: &[Option<Usable>],
     ) -> Option<([f64; 2], Vec<f64>, Uncertainty)> {
         let pl = self.plausibility(group, usable)?;
-        let poses = self.model.poses();
         let weights = match self.settings.estimator {
             Estimator::Pignistic => {
                 let combined = dempster_all(&self.on_cells(group, usable)?).ok()?.mass?;
@@ -84,6 +83,59 @@ impl Tracker {
             }
             _ => pl.clone(),
         };
+        let (estimate, uncertainty) = self.estimate_from(&weights)?;
+        Some((estimate, pl, uncertainty))
+    }
+
+    /// The splitting policy's final estimate (§4.2): each alternative's relative plausibility
+    /// (scaled to maximum 1) discounted by its reliability r = (lowest validation error among the
+    /// alternatives) / (its own), then combined by Dempster's rule, whose contour on the poses is
+    /// the product of the discounted contours 1 − r + r·pl. The most reliable alternative is
+    /// undiscounted; one that is half as precise keeps half its say. `None` with fewer than two
+    /// alternatives, without a validation error for each, or when the discounted alternatives
+    /// are in total conflict (the caller then reports the first alternative, as without
+    /// reliabilities). The pignistic estimator reads the combined contour as its probability.
+    pub(super) fn weigh_alternatives(&self, alternatives: &[(u32, Vec<f64>)]) -> Option<Weighed> {
+        if alternatives.len() < 2 {
+            return None;
+        }
+        let errors: Vec<f64> = alternatives
+            .iter()
+            .map(|(g, _)| self.model.group_error(*g))
+            .collect::<Option<_>>()?;
+        let best = errors.iter().copied().fold(f64::INFINITY, f64::min);
+        let reliability: Vec<f64> = errors
+            .iter()
+            .map(|&e| if e > 0.0 { best / e } else { 1.0 })
+            .collect();
+        let mut combined = vec![1.0; self.model.poses().len()];
+        for ((_, pl), &r) in alternatives.iter().zip(&reliability) {
+            let max = pl.iter().copied().fold(0.0f64, f64::max);
+            if max <= 0.0 {
+                return None;
+            }
+            for (c, &p) in combined.iter_mut().zip(pl) {
+                *c *= 1.0 - r + r * p / max;
+            }
+        }
+        let total: f64 = combined.iter().sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return None;
+        }
+        combined.iter_mut().for_each(|c| *c /= total);
+        let (estimate, uncertainty) = self.estimate_from(&combined)?;
+        Some(Weighed {
+            reliability,
+            estimate,
+            plausibility: combined,
+            uncertainty,
+        })
+    }
+
+    /// The pose the estimator reads off `weights` over the sample poses (the most weighted pose
+    /// for MAP, the weighted mean otherwise), with the uncertainty of the weights around it.
+    fn estimate_from(&self, weights: &[f64]) -> Option<([f64; 2], Uncertainty)> {
+        let poses = self.model.poses();
         let estimate = match self.settings.estimator {
             Estimator::Map => {
                 let mut best = 0;
@@ -94,11 +146,21 @@ impl Tracker {
                 }
                 poses[best]
             }
-            _ => weighted_mean(&weights, poses)?,
+            _ => weighted_mean(weights, poses)?,
         };
-        let uncertainty = uncertainty(&weights, poses, estimate, self.settings.uncertainty_mass);
-        Some((estimate, pl, uncertainty))
+        let uncertainty = uncertainty(weights, poses, estimate, self.settings.uncertainty_mass);
+        Some((estimate, uncertainty))
     }
+}
+
+/// The splitting policy's reliability-weighted estimate.
+pub(super) struct Weighed {
+    /// Each alternative's reliability, in their order.
+    pub(super) reliability: Vec<f64>,
+    pub(super) estimate: [f64; 2],
+    /// Combined relative plausibility of the sample poses.
+    pub(super) plausibility: Vec<f64>,
+    pub(super) uncertainty: Uncertainty,
 }
 
 /// Weighted RMS distance from `centre` and the smallest radius holding `share` of the weight.

@@ -14,9 +14,9 @@ mod settings;
 mod threshold;
 mod tracker;
 
-pub use model::{TrackedFeature, TrackerModel, MAX_FEATURES};
+pub use model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
 pub use settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
-pub use threshold::learn_conflict_threshold;
+pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};
 
 use crate::evidence::EvidenceError;
@@ -85,6 +85,14 @@ pub enum TrackError {
         levels: usize,
         /// Number of errors.
         errors: usize,
+    },
+    /// A group's validation error is malformed.
+    #[error("group validation error for features {group:?}: {reason}")]
+    BadGroupError {
+        /// The group's features.
+        group: Vec<usize>,
+        /// What is wrong.
+        reason: String,
     },
     /// An estimation error for threshold learning is NaN, infinite or negative.
     #[error(

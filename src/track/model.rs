@@ -18,11 +18,44 @@ pub struct TrackedFeature {
     pub validation_error: Option<f64>,
 }
 
+/// The mean estimation error (mm) of one group of features combined alone on a validation motion:
+/// the reliability the splitting policy weighs its alternatives by (§4.2).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroupError {
+    /// Feature indices, ascending.
+    pub features: Vec<usize>,
+    /// Mean error (mm).
+    pub error: f64,
+}
+
+impl GroupError {
+    /// The group's mask, after checking the features are a non-empty ascending list of indices
+    /// below `n_features` and the error is finite and ≥ 0.
+    ///
+    /// # Errors
+    /// What is wrong, as a sentence.
+    pub fn check(&self, n_features: usize) -> Result<u32, String> {
+        if self.features.is_empty() || self.features.windows(2).any(|w| w[0] >= w[1]) {
+            return Err("features must be a non-empty ascending list".into());
+        }
+        if self.features.iter().any(|&i| i >= n_features) {
+            return Err(format!("the model has {n_features} features"));
+        }
+        if !(self.error.is_finite() && self.error >= 0.0) {
+            return Err(format!("error {} is not finite and ≥ 0", self.error));
+        }
+        Ok(self.features.iter().fold(0u32, |m, &i| m | 1 << i))
+    }
+}
+
 /// The evidential model the tracker runs on: sample poses Q̃ (mm) and one refining per feature.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackerModel {
     poses: Vec<[f64; 2]>,
     features: Vec<TrackedFeature>,
+    /// Validation error of each group, by mask (empty when not learned).
+    group_errors: std::collections::HashMap<u32, f64>,
 }
 
 impl TrackerModel {
@@ -66,7 +99,34 @@ impl TrackerModel {
                 }
             }
         }
-        Ok(TrackerModel { poses, features })
+        Ok(TrackerModel {
+            poses,
+            features,
+            group_errors: Default::default(),
+        })
+    }
+
+    /// The same model with the groups' validation errors.
+    ///
+    /// # Errors
+    /// [`TrackError::BadGroupError`] for an empty group, an index out of range or repeated, or an
+    /// error that is not finite and ≥ 0.
+    pub fn with_group_errors(mut self, errors: &[GroupError]) -> Result<Self, TrackError> {
+        for g in errors {
+            let mask =
+                g.check(self.features.len())
+                    .map_err(|reason| TrackError::BadGroupError {
+                        group: g.features.clone(),
+                        reason,
+                    })?;
+            self.group_errors.insert(mask, g.error);
+        }
+        Ok(self)
+    }
+
+    /// The validation error of a group (by mask), when learned.
+    pub(super) fn group_error(&self, mask: u32) -> Option<f64> {
+        self.group_errors.get(&mask).copied()
     }
 
     /// The sample poses.

@@ -28,6 +28,10 @@ impl Tracker {
         let groups = cliques(usable_mask, &adj, f);
         let mut memo: HashMap<u32, f64> = HashMap::new();
         let policy = self.settings.selection;
+        // A group is eligible when its own level is within the threshold, the quantity §4.3
+        // learns it from; the graph's pairwise test is the necessary condition (Theorem 4.3: K
+        // only grows as features are added), which prunes the candidates.
+        let threshold = self.settings.conflict_threshold;
         let min_size = policy.min_size();
         let mut chosen: Option<(f64, u32)> = None;
         let mut alternatives: Vec<(f64, u32)> = Vec::new();
@@ -38,7 +42,7 @@ impl Tracker {
                 while size >= 1 && chosen.is_none() {
                     for &g in groups.iter().filter(|g| g.count_ones() == size) {
                         let k = self.level(g, usable, &mut memo, f64::INFINITY);
-                        if k.is_finite() && chosen.is_none_or(|(best, _)| k < best - TIE) {
+                        if threshold.admits(k) && chosen.is_none_or(|(best, _)| k < best - TIE) {
                             chosen = Some((k, g));
                         }
                     }
@@ -57,7 +61,7 @@ impl Tracker {
                 {
                     let bound = chosen.map_or(f64::INFINITY, |(k, _)| k);
                     let k = self.level(g, usable, &mut memo, bound);
-                    if k.is_finite() {
+                    if threshold.admits(k) {
                         let better = match chosen {
                             None => true,
                             Some((best, bg)) => {
@@ -81,7 +85,7 @@ impl Tracker {
                         continue;
                     }
                     let k = self.level(g, usable, &mut memo, f64::INFINITY);
-                    if k.is_finite() {
+                    if threshold.admits(k) {
                         alternatives.push((k, g));
                     }
                 }

@@ -8,7 +8,7 @@ use crate::evidence::{ConflictLevel, Constructor};
 /// How the group of features to combine is chosen among the compatible groups (§4.2).
 ///
 /// A *combinable group* is a set of usable features that is complete in the conflict graph and
-/// whose own level of conflict is finite.
+/// whose own level of conflict is within the conflict threshold (finite when it is `"inf"`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(try_from = "RawPolicy", into = "RawPolicy")]
 pub enum SelectionPolicy {
@@ -109,8 +109,9 @@ pub enum Estimator {
 pub struct TrackSettings {
     /// Measurement function constructor (§3.6).
     pub constructor: Constructor,
-    /// Conflict threshold: features i, j are compatible when K_ij is finite and K_ij ≤ threshold.
-    /// `"inf"` (the default) makes every pair with finite conflict compatible.
+    /// Conflict threshold: features i, j are compatible (an edge of the conflict graph) when K_ij
+    /// is finite and K_ij ≤ threshold, and a group may be combined when its own level is within
+    /// it too. `"inf"` (the default) admits every pair and group with finite conflict.
     pub conflict_threshold: ConflictLevel,
     /// Group selection policy.
     pub selection: SelectionPolicy,

@@ -1,11 +1,75 @@
 //! Learning the conflict threshold on a validation motion (§4.3).
+//!
+//! The levels are those of the groups the tracker combines with no threshold (the largest group
+//! with a finite level, §4.3's "compatible b.f."), and the learned threshold is applied to the
+//! same quantity: a group is combined only when its own level is within it.
+
+use serde::{Deserialize, Serialize};
 
 use super::TrackError;
 use crate::evidence::ConflictLevel;
 
-/// The conflict threshold learned from a validation motion: the mean of the per-frame levels of
-/// conflict of the full combination, weighted by the per-frame estimation errors,
-/// K̂ = Σ K_k e_k / Σ e_k.
+/// How the threshold is learned from the validation levels.
+#[derive(Clone, Copy, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum ThresholdRule {
+    /// The paper's: the levels' mean weighted by the estimation errors
+    /// ([`learn_conflict_threshold`]). A typical level, so clean frames above it lose features.
+    #[default]
+    ErrorWeighted,
+    /// This quantile of the levels (e.g. 0.99): on clean data about 1 − q of the frames exceed
+    /// it, a false-alarm rate chosen in advance ([`quantile_threshold`]).
+    Quantile(f64),
+}
+
+impl ThresholdRule {
+    /// Checks the quantile lies in (0, 1].
+    ///
+    /// # Errors
+    /// [`TrackError::InvalidSetting`].
+    pub fn check(self) -> Result<Self, TrackError> {
+        match self {
+            ThresholdRule::Quantile(q) if !(q > 0.0 && q <= 1.0) => {
+                Err(TrackError::InvalidSetting {
+                    field: "threshold_rule.quantile",
+                    reason: format!("{q} is not in (0, 1]"),
+                })
+            }
+            rule => Ok(rule),
+        }
+    }
+
+    /// The threshold this rule learns from per-frame `levels` and estimation `errors`.
+    ///
+    /// # Errors
+    /// As [`learn_conflict_threshold`].
+    pub fn learn(self, levels: &[f64], errors: &[f64]) -> Result<ConflictLevel, TrackError> {
+        match self {
+            ThresholdRule::ErrorWeighted => learn_conflict_threshold(levels, errors),
+            ThresholdRule::Quantile(q) => {
+                learn_conflict_threshold(levels, errors)?;
+                Ok(quantile_threshold(levels, q))
+            }
+        }
+    }
+}
+
+/// The `q`-quantile of the finite `levels` (the smallest level at least a share `q` of them do not
+/// exceed); [`ConflictLevel::Infinite`] without a finite level.
+pub fn quantile_threshold(levels: &[f64], q: f64) -> ConflictLevel {
+    let mut finite: Vec<f64> = levels.iter().copied().filter(|k| k.is_finite()).collect();
+    if finite.is_empty() {
+        return ConflictLevel::Infinite;
+    }
+    finite.sort_by(f64::total_cmp);
+    let rank = ((q * finite.len() as f64).ceil() as usize).clamp(1, finite.len());
+    ConflictLevel::Finite(finite[rank - 1])
+}
+
+/// The conflict threshold learned from a validation motion (§4.3): the mean of the per-frame levels
+/// of conflict of the combined groups, weighted by the per-frame estimation errors,
+/// K̂ = Σ K_k e_k / Σ e_k. (The paper prints the numerator only; "the mean value … weighted by the
+/// estimation errors" needs the division, without which K̂ would grow with the motion's length.)
 ///
 /// Frames whose level is infinite (or NaN) are skipped: they have no finite level to average.
 /// When the remaining frames' errors sum to 0 (every estimate exact), the plain mean of their levels
@@ -60,6 +124,34 @@ mod tests {
         // (0.1·1 + 0.4·3) / 4 = 0.325; the infinite frame is skipped.
         let k = learn_conflict_threshold(&[0.1, 0.4, f64::INFINITY], &[1.0, 3.0, 100.0]).unwrap();
         assert!((k.value() - 0.325).abs() < 1e-15);
+    }
+
+    #[test]
+    fn quantiles_of_the_finite_levels() {
+        let levels = [5.0, 1.0, f64::INFINITY, 3.0, 2.0, 4.0];
+        assert_eq!(quantile_threshold(&levels, 1.0), ConflictLevel::Finite(5.0));
+        assert_eq!(quantile_threshold(&levels, 0.8), ConflictLevel::Finite(4.0));
+        assert_eq!(quantile_threshold(&levels, 0.5), ConflictLevel::Finite(3.0));
+        assert_eq!(
+            quantile_threshold(&levels, 0.01),
+            ConflictLevel::Finite(1.0)
+        );
+        assert_eq!(
+            quantile_threshold(&[f64::INFINITY], 0.5),
+            ConflictLevel::Infinite
+        );
+        let rule = ThresholdRule::Quantile(0.5);
+        assert_eq!(
+            rule.learn(&levels, &[1.0; 6]).unwrap(),
+            ConflictLevel::Finite(3.0)
+        );
+        assert!(rule.learn(&levels, &[1.0]).is_err());
+        assert!(ThresholdRule::Quantile(0.0).check().is_err());
+        assert!(ThresholdRule::Quantile(f64::NAN).check().is_err());
+        let parsed: std::collections::BTreeMap<String, ThresholdRule> =
+            toml::from_str("a = \"error_weighted\"\nb = { quantile = 0.95 }").unwrap();
+        assert_eq!(parsed["a"], ThresholdRule::ErrorWeighted);
+        assert_eq!(parsed["b"], ThresholdRule::Quantile(0.95));
     }
 
     #[test]

@@ -25,6 +25,7 @@ use std::collections::HashMap;
 use serde::{Deserialize, Serialize};
 
 use super::cells::Cells;
+use super::estimate::Weighed;
 use super::model::TrackerModel;
 use super::select::Selection;
 use super::settings::{CheckedTrackSettings, TrackSettings};
@@ -107,6 +108,9 @@ pub struct Alternative {
     pub estimate: [f64; 2],
     /// Its uncertainty.
     pub uncertainty: Uncertainty,
+    /// Its weight in the final estimate, in (0, 1] (1 for the most reliable alternative); `None`
+    /// when the alternatives were not weighed (one alternative, or no validation errors).
+    pub reliability: Option<f64>,
 }
 
 /// The tracker's output for one frame.
@@ -114,10 +118,16 @@ pub struct Alternative {
 pub struct FrameEstimate {
     /// Estimated pose (mm); `None` when no feature was usable.
     pub estimate: Option<[f64; 2]>,
-    /// Features combined for the estimate (ascending).
+    /// Features combined for the estimate (ascending): with weighed splitting alternatives, every
+    /// feature of any alternative.
     pub group: Vec<usize>,
-    /// Level of conflict of the chosen group (0 for a single feature); `None` without estimate.
+    /// Level of conflict of the chosen group (0 for a single feature; with weighed splitting
+    /// alternatives, the most reliable one's); `None` without estimate.
     pub conflict_level: Option<f64>,
+    /// Level of conflict of every usable feature together (+∞ on total conflict, 0 with one
+    /// usable feature): how incoherent the frame's measurements are, whatever was chosen.
+    /// `None` without a usable feature.
+    pub full_conflict_level: Option<f64>,
     /// Uncertainty of the estimate.
     pub uncertainty: Option<Uncertainty>,
     /// Relative plausibility of every sample pose under the chosen group (empty without estimate).
@@ -151,6 +161,7 @@ impl FrameEstimate {
             estimate: None,
             group: Vec::new(),
             conflict_level: None,
+            full_conflict_level: None,
             uncertainty: None,
             plausibility: Vec::new(),
             alternatives: Vec::new(),
@@ -350,24 +361,51 @@ impl Tracker {
             flags.no_usable_feature = true;
             return Ok(FrameEstimate::without_estimate(flags));
         };
-        flags.excluded = lex(usable_mask & !group);
         let mut alts = Vec::with_capacity(alternatives.len());
+        let mut alt_plausibility = Vec::with_capacity(alternatives.len());
         for &(k, g) in &alternatives {
-            if let Some((estimate, _, uncertainty)) = self.estimate_group(g, &usable) {
+            if let Some((estimate, pl, uncertainty)) = self.estimate_group(g, &usable) {
                 alts.push(Alternative {
                     group: lex(g),
                     conflict_level: k,
                     estimate,
                     uncertainty,
+                    reliability: None,
                 });
+                alt_plausibility.push((g, pl));
             }
         }
-        let result = self.estimate_group(group, &usable);
+        let full_level = if group == usable_mask && !fallback {
+            level
+        } else {
+            self.level(usable_mask, &usable, &mut HashMap::new(), f64::INFINITY)
+        };
+        let (result, group, level) = match self.weigh_alternatives(&alt_plausibility) {
+            Some(Weighed {
+                reliability,
+                estimate,
+                plausibility: pl,
+                uncertainty,
+            }) => {
+                let most = (0..alts.len())
+                    .max_by(|&a, &b| reliability[a].total_cmp(&reliability[b]).then(b.cmp(&a)))
+                    .unwrap_or(0);
+                let level = alts[most].conflict_level;
+                for (a, r) in alts.iter_mut().zip(reliability) {
+                    a.reliability = Some(r);
+                }
+                let union = alt_plausibility.iter().fold(0u32, |m, (g, _)| m | g);
+                (Some((estimate, pl, uncertainty)), union, level)
+            }
+            None => (self.estimate_group(group, &usable), group, level),
+        };
+        flags.excluded = lex(usable_mask & !group);
         flags.combination_failed = result.is_none();
         Ok(FrameEstimate {
             estimate: result.as_ref().map(|r| r.0),
             group: lex(group),
             conflict_level: Some(level),
+            full_conflict_level: Some(full_level),
             uncertainty: result.as_ref().map(|r| r.2),
             plausibility: result.map(|r| r.1).unwrap_or_default(),
             alternatives: alts,
