@@ -5,6 +5,7 @@ mod baselines;
 mod cli;
 mod dataset;
 mod evidence;
+mod faults;
 mod features;
 mod front_door;
 mod hmm;

@@ -1,0 +1,182 @@
+//! Faults: the faults sweep meets its expectations and the README's claims, fault draws are
+//! seeded (same scenario and seed, same frames, bit for bit), and the learned threshold acts.
+
+use std::collections::HashMap;
+use std::process::Command;
+
+use evitrack::experiment::{run_all, RunOutput, Workbench};
+use evitrack::report::{FaultSummary, MethodSummary};
+use evitrack::scenario::ScenarioSet;
+
+fn faults_sweep() -> HashMap<String, RunOutput> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/faults.toml");
+    let set = ScenarioSet::load(std::path::Path::new(path)).expect("scenarios/faults.toml is valid");
+    let bench = Workbench::new();
+    run_all(&set.variants, 2, &bench, &|_, _, _, _| {})
+        .into_iter()
+        .zip(&set.variants)
+        .map(|(result, variant)| {
+            let output = result.unwrap_or_else(|e| panic!("variant {} failed: {e}", variant.name));
+            (variant.name.clone(), output)
+        })
+        .collect()
+}
+
+fn method<'a>(runs: &'a HashMap<String, RunOutput>, variant: &str, name: &str) -> &'a MethodSummary {
+    runs[&format!("faults-{variant}")]
+        .summary
+        .method(name)
+        .unwrap_or_else(|| panic!("{variant} has no {name}"))
+}
+
+fn faults<'a>(runs: &'a HashMap<String, RunOutput>, variant: &str, name: &str) -> &'a FaultSummary {
+    method(runs, variant, name).faults.as_ref().expect("a run with faults")
+}
+
+fn mean(stats: Option<evitrack::report::ErrorStats>) -> f64 {
+    stats.expect("frames with an estimate").mean
+}
+
+#[test]
+fn the_faults_sweep_meets_its_expectations_and_the_readme_claims() {
+    let runs = faults_sweep();
+    for (name, output) in &runs {
+        let missed = output.summary.regressions();
+        assert!(missed.is_empty(), "{name}: {missed:#?}");
+    }
+    let stuck = faults(&runs, "stuck", "evidential");
+    let open = faults(&runs, "stuck-inf", "evidential");
+    let q99 = faults(&runs, "stuck-q99", "evidential");
+    // The level of conflict tells the corrupted frames apart.
+    for f in [stuck, open, q99] {
+        assert!(f.detection_auc.unwrap() >= 0.95, "{f:?}");
+        assert_eq!(f.corrupted_frames, 56);
+    }
+    // Combining everything degrades at least 3×; learning the threshold cuts that.
+    let ratio = |f: &FaultSummary| mean(f.error_corrupted) / mean(f.error_clean);
+    assert!(ratio(open) >= 3.0, "{}", ratio(open));
+    assert!(mean(stuck.error_corrupted) < 0.2 * mean(open.error_corrupted));
+    assert!(mean(q99.error_corrupted) < 0.2 * mean(open.error_corrupted));
+    // The issue's bound (1.5×) is missed: the paper's rule reaches it only by losing accuracy on
+    // clean frames, the 99th percentile keeps clean frames and stays near 2.2×, and the floor —
+    // the two features absent from every frame — is itself above 1.5× the clean error.
+    assert!(ratio(stuck) > 1.45 && ratio(stuck) < 1.55, "{}", ratio(stuck));
+    assert!(mean(stuck.error_clean) > 1.2 * mean(open.error_clean));
+    assert!(ratio(q99) > 2.0, "{}", ratio(q99));
+    let floor = method(&runs, "absent", "evidential").error.unwrap().mean;
+    assert!(floor > 1.5 * mean(open.error_clean), "{floor}");
+    // On the corrupted frames the evidential tracker beats both regressors.
+    for baseline in ["knn", "gp"] {
+        let b = faults(&runs, "stuck", baseline);
+        assert!(
+            mean(stuck.error_corrupted) < 0.2 * mean(b.error_corrupted),
+            "{baseline}: {b:?}"
+        );
+    }
+    // Left-out features are mostly the stuck ones.
+    assert!(q99.left_out_precision.unwrap() > 0.9 && q99.left_out_recall.unwrap() > 0.9);
+    // Weighing splitting alternatives by clean-data reliability does not reject the stuck ones.
+    let split = faults(&runs, "stuck-split", "evidential");
+    assert!(mean(split.error_corrupted) > 2.0 * mean(stuck.error_corrupted));
+    // Every frame the stuck fault struck records both features as changed.
+    let records = &runs["faults-stuck"].records;
+    let struck: Vec<_> = records
+        .iter()
+        .filter(|r| r.method == "evidential")
+        .filter_map(|r| r.faults.as_ref())
+        .filter(|f| f.faults == ["stuck"])
+        .collect();
+    assert_eq!(struck.len(), 56);
+    assert!(struck.iter().all(|f| f.changed == [0, 6]), "{struck:?}");
+}
+
+const SMALL: &str = r#"
+name = "small-faults"
+seed = 4
+estimators = ["evidential", "knn"]
+learn_threshold = true
+
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+
+[[tests]]
+kind = "lissajous"
+freq_x = 0.3
+freq_y = 0.2
+duration = 4.0
+fps = 10.0
+
+[features.barycentre]
+enabled = true
+
+[model]
+states = 6
+
+[[faults]]
+kind = "occluder"
+rect = [-10, 30, 12, 30]
+intensity = 255
+velocity = [5.0, 0.0]
+share = 0.5
+
+[[faults]]
+kind = "salt_pepper"
+density = 0.05
+share = 0.3
+burst = 2
+
+[[faults]]
+kind = "noise"
+features = ["size_line1", "barycentre_y"]
+sigma = 1.0
+units = "sd"
+share = 0.4
+
+[[faults]]
+kind = "dropped"
+window = [30, 39]
+share = 0.5
+"#;
+
+#[test]
+fn fault_draws_are_bit_identical_for_a_scenario_and_seed() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("small.toml");
+    std::fs::write(&scenario, SMALL).unwrap();
+    let frames = |out: &str, seed: &str| {
+        let out = dir.path().join(out);
+        let status = Command::new(env!("CARGO_BIN_EXE_evitrack"))
+            .args(["run", scenario.to_str().unwrap(), "--out", out.to_str().unwrap()])
+            .args(["--seed", seed])
+            .output()
+            .unwrap();
+        assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+        std::fs::read(out.join("small-faults/frames.csv")).unwrap()
+    };
+    let a = frames("a", "4");
+    assert_eq!(a, frames("b", "4"), "same scenario and seed, same bytes");
+    assert_ne!(a, frames("c", "5"), "another seed, other draws");
+    let text = String::from_utf8(a).unwrap();
+    let mut reader = csv::Reader::from_reader(text.as_bytes());
+    let header = reader.headers().unwrap().clone();
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (faults, changed) = (column("faults"), column("changed_features"));
+    let rows: Vec<csv::StringRecord> = reader.records().map(|r| r.unwrap()).collect();
+    let labelled = |needle: &str| rows.iter().filter(|r| r[faults].contains(needle)).count();
+    assert!(labelled("occluder") > 0 && labelled("salt_pepper") > 0 && labelled("noise") > 0);
+    for r in rows.iter().filter(|r| r[faults].contains("dropped")) {
+        assert_eq!(&r[changed], "frame");
+        assert!(r[column("est_x")].is_empty(), "a lost frame has no estimate");
+    }
+    assert!(rows.iter().any(|r| r[faults].contains("dropped")));
+    // Clean frames are clean for every method, and a frame's label is the same for both.
+    for r in rows.iter().filter(|r| r[faults].is_empty()) {
+        assert!(r[changed].is_empty());
+    }
+    let per_method = |m: &str| -> Vec<(String, String)> {
+        (rows.iter().filter(|r| &r[0] == m))
+            .map(|r| (r[faults].to_string(), r[changed].to_string()))
+            .collect()
+    };
+    assert_eq!(per_method("evidential"), per_method("knn"));
+}
