@@ -3,10 +3,16 @@
 //!
 //! `paper_like`: 8 linear features of the pose in different directions, 2–3 states each (the
 //! paper's state counts). `fine`: x and y with 20 states, their coarse versions with 7, x ± y with
-//! 10 and x + 2y, 2x − y with 8 (every sample pose is its own cell).
+//! 10 and x + 2y, 2x − y with 8 (every sample pose is its own cell). `faulty`: the fine model with
+//! two features reporting a pose 8 mm away and a threshold just above the clean frame's level,
+//! so the groups below the full one are searched; with the largest-subset policy and with
+//! splitting into alternatives weighed by group reliabilities.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use evitrack::evidence::ConflictLevel;
 use evitrack::evidence::{Constructor, Refining};
-use evitrack::track::{TrackSettings, TrackedFeature, Tracker, TrackerModel};
+use evitrack::track::{
+    GroupError, SelectionPolicy, TrackSettings, TrackedFeature, Tracker, TrackerModel,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
@@ -22,7 +28,14 @@ impl Feat {
     }
 }
 
-fn setup(feats: &[Feat], constructor: Constructor, seed: u64) -> (Tracker, Vec<Option<Vec<f64>>>) {
+/// A tracker over the 20 × 20 mesh and one frame's likelihoods at a random pose, the features in
+/// `corrupt` reporting the pose 8 mm further in x.
+fn setup(
+    feats: &[Feat],
+    settings: TrackSettings,
+    corrupt: &[usize],
+    seed: u64,
+) -> (Tracker, Vec<Option<Vec<f64>>>) {
     let poses: Vec<[f64; 2]> = (0..20)
         .flat_map(|y| (0..20).map(move |x| [x as f64, y as f64]))
         .collect();
@@ -45,21 +58,31 @@ fn setup(feats: &[Feat], constructor: Constructor, seed: u64) -> (Tracker, Vec<O
         });
         ranges.push((lo, w));
     }
-    let model = TrackerModel::new(poses, features).expect("model");
-    let settings = TrackSettings {
-        constructor,
-        ..TrackSettings::default()
-    }
-    .check()
-    .expect("settings");
-    let tracker = Tracker::new(model, settings).expect("tracker");
+    // Group reliabilities for the splitting policy: larger groups more reliable.
+    let n = feats.len();
+    let group_errors: Vec<GroupError> = (1u32..1 << n)
+        .map(|m| GroupError {
+            features: (0..n).filter(|j| m >> j & 1 == 1).collect(),
+            error: 1.0 / f64::from(m.count_ones()),
+        })
+        .collect();
+    let model = TrackerModel::new(poses, features)
+        .expect("model")
+        .with_group_errors(&group_errors)
+        .expect("group errors");
+    let tracker = Tracker::new(model, settings.check().expect("settings")).expect("tracker");
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let p = [rng.random_range(0.0..19.0), rng.random_range(0.0..19.0)];
+    let p = [rng.random_range(0.0..11.0), rng.random_range(0.0..19.0)];
     let lik = feats
         .iter()
         .zip(&ranges)
-        .map(|(f, &(lo, w))| {
-            let v = f.value(p);
+        .enumerate()
+        .map(|(i, (f, &(lo, w)))| {
+            let v = f.value(if corrupt.contains(&i) {
+                [p[0] + 8.0, p[1]]
+            } else {
+                p
+            });
             Some(
                 (0..f.states)
                     .map(|j| {
@@ -107,8 +130,52 @@ fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("track_frame_8_features_400_poses");
     for (name, feats) in [("paper_like", &paper_like), ("fine", &fine)] {
         for constructor in [Constructor::Bayesian, Constructor::Consonant] {
-            let (tracker, lik) = setup(feats, constructor, 2026);
+            let settings = TrackSettings {
+                constructor,
+                ..TrackSettings::default()
+            };
+            let (tracker, lik) = setup(feats, settings, &[], 2026);
             let id = BenchmarkId::new(name, format!("{constructor:?}").to_lowercase());
+            group.bench_with_input(id, &lik, |b, lik| {
+                b.iter(|| {
+                    black_box(
+                        tracker
+                            .track(black_box(lik))
+                            .expect("one entry per feature"),
+                    )
+                })
+            });
+        }
+    }
+    // Two corrupted features; the threshold just above the clean frame's level.
+    for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        let open = TrackSettings {
+            constructor,
+            ..TrackSettings::default()
+        };
+        let (clean, clean_lik) = setup(&fine, open.clone(), &[], 2026);
+        let level = clean
+            .full_conflict_level(&clean_lik)
+            .expect("one entry per feature");
+        for (policy, selection) in [
+            ("largest", SelectionPolicy::LargestSubset),
+            ("split4", SelectionPolicy::Splitting { min_size: 4 }),
+        ] {
+            let settings = TrackSettings {
+                conflict_threshold: ConflictLevel::Finite(1.05 * level),
+                selection,
+                ..open.clone()
+            };
+            let (tracker, lik) = setup(&fine, settings, &[0, 4], 2026);
+            let frame = tracker.track(&lik).expect("one entry per feature");
+            assert!(
+                !frame.flags.excluded.is_empty() || frame.alternatives.len() > 1,
+                "the corrupted features are left out, or split off"
+            );
+            let id = BenchmarkId::new(
+                format!("faulty_{policy}"),
+                format!("{constructor:?}").to_lowercase(),
+            );
             group.bench_with_input(id, &lik, |b, lik| {
                 b.iter(|| {
                     black_box(

@@ -519,3 +519,17 @@ fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("1 test motion(s)"));
 }
+
+#[test]
+fn the_readme_scenario_example_is_a_valid_scenario() {
+    let readme =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md")).unwrap();
+    let section = &readme[readme.find("## Scenario files").expect("the section")..];
+    let start = section.find("```toml\n").expect("a TOML block") + "```toml\n".len();
+    let block = &section[start..start + section[start..].find("```").unwrap()];
+    let set = evitrack::scenario::ScenarioSet::parse(block, "README.md")
+        .unwrap_or_else(|e| panic!("{e}"));
+    // One listed variant and a grid of three.
+    assert_eq!(set.variants.len(), 4);
+    assert!(!set.base.fault_plan().is_empty());
+}

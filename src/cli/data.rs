@@ -61,7 +61,7 @@ pub struct SimulateArgs {
     scenario: Option<PathBuf>,
     /// Which of the scenario's motions: `sample` (the frames `run` trains on, after
     /// `keep_every` and the adaptive samples), `validation` or `test` (`test1`, … for later test
-    /// motions).
+    /// motions; the clean frames, before the scenario's [[faults]]).
     #[arg(long, default_value = "sample", requires = "scenario")]
     part: String,
     /// The sweep variant of the scenario file, by its full name (`paper-c`) or the part after
@@ -172,6 +172,13 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
                     s.tests.len().saturating_sub(1)
                 )
             })?;
+            if !scenario.fault_plan().is_empty() {
+                eprintln!(
+                    "note: scenario `{}` has [[faults]]; these are the clean test frames (a run \
+                     applies the faults to them and records in frames.csv which frames they struck)",
+                    s.name
+                );
+            }
             (motion, ScenarioPart::Test(index))
         }
         other => bail!("--part `{other}` must be sample, validation or test[N]"),
