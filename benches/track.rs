@@ -29,7 +29,7 @@ impl Feat {
 }
 
 /// A tracker over the 20 × 20 mesh and one frame's likelihoods at a random pose, the features in
-/// `corrupt` reporting the pose 8 mm further in x.
+/// `corrupt` reporting a pose 8 mm away in x.
 fn setup(
     feats: &[Feat],
     settings: TrackSettings,
@@ -72,7 +72,8 @@ fn setup(
         .expect("group errors");
     let tracker = Tracker::new(model, settings.check().expect("settings")).expect("tracker");
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let p = [rng.random_range(0.0..11.0), rng.random_range(0.0..19.0)];
+    let p = [rng.random_range(0.0..19.0), rng.random_range(0.0..19.0)];
+    let shifted = if p[0] < 11.0 { p[0] + 8.0 } else { p[0] - 8.0 };
     let lik = feats
         .iter()
         .zip(&ranges)

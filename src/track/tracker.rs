@@ -56,7 +56,8 @@ pub enum FeatureIssue {
 pub struct FrameFlags {
     /// Features that took no part, with the reason (ascending feature index).
     pub unusable: Vec<(usize, FeatureIssue)>,
-    /// Usable features left out of the chosen group by the conflict graph (normal operation).
+    /// Usable features left out of the chosen group by the conflict threshold (normal operation;
+    /// on fallback, every usable feature but the fallback one).
     pub excluded: Vec<usize>,
     /// No eligible group existed (e.g. every pair conflicts beyond the threshold), so the single
     /// usable feature with the lowest validation error was used (no validation errors: lowest
@@ -317,8 +318,8 @@ impl Tracker {
         Ok(k)
     }
 
-    /// Level of conflict of the combination of every usable feature (the quantity §4.3 learns the
-    /// threshold from): +∞ on total conflict, 0 with fewer than two usable features.
+    /// Level of conflict of the combination of every usable feature (a frame's detection score):
+    /// +∞ on total conflict, 0 with fewer than two usable features.
     ///
     /// # Errors
     /// [`TrackError::FeatureInputCount`].
