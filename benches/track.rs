@@ -80,7 +80,7 @@ fn setup(
         .enumerate()
         .map(|(i, (f, &(lo, w)))| {
             let v = f.value(if corrupt.contains(&i) {
-                [p[0] + 8.0, p[1]]
+                [shifted, p[1]]
             } else {
                 p
             });
