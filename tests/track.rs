@@ -657,3 +657,100 @@ fn splitting_weighs_alternatives_by_their_reliability() {
     assert!(est.alternatives.iter().all(|a| a.reliability.is_none()));
     assert_eq!(est.estimate, Some(est.alternatives[0].estimate));
 }
+
+/// A random model on `n_poses` sample poses: some features are relabelled copies of earlier
+/// ones (so the same state tuple recurs across features and groups), and few states on many
+/// poses make cells of many poses.
+fn random_model(rng: &mut ChaCha8Rng) -> (TrackerModel, Vec<usize>) {
+    let n_poses = rng.random_range(6..30);
+    let n_features = rng.random_range(2..6);
+    let poses: Vec<[f64; 2]> = (0..n_poses)
+        .map(|q| [q as f64, (q * q % 7) as f64])
+        .collect();
+    let mut assignments: Vec<(usize, Vec<usize>)> = Vec::new();
+    for i in 0..n_features {
+        if i > 0 && rng.random_bool(0.3) {
+            let (n, a) = assignments[rng.random_range(0..i)].clone();
+            let shift = rng.random_range(0..n);
+            assignments.push((n, a.iter().map(|&s| (s + shift) % n).collect()));
+        } else {
+            let n = rng.random_range(2..5);
+            // The first n poses take every state, so the refining is valid.
+            let a = (0..n_poses)
+                .map(|q| if q < n { q } else { rng.random_range(0..n) })
+                .collect();
+            assignments.push((n, a));
+        }
+    }
+    let states = assignments.iter().map(|(n, _)| *n).collect();
+    let features = assignments
+        .iter()
+        .map(|(n, a)| TrackedFeature {
+            refining: Refining::from_assignment(*n, a).unwrap(),
+            validation_error: None,
+        })
+        .collect();
+    (TrackerModel::new(poses, features).unwrap(), states)
+}
+
+mod fast_paths {
+    use super::*;
+    use evitrack::evidence::conflict_level_all;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Every group's level of conflict and every sample pose's relative plausibility, from
+        /// the tracker's exact shortcuts on cells, equal Dempster's rule on the measurement
+        /// functions extended to the individual sample poses.
+        #[test]
+        fn every_group_equals_dempster_on_the_sample_poses(seed in any::<u64>(), consonant in any::<bool>()) {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let (model, states) = random_model(&mut rng);
+            let constructor = if consonant { Constructor::Consonant } else { Constructor::Bayesian };
+            let settings = TrackSettings { constructor, ..TrackSettings::default() };
+            let t = Tracker::new(model.clone(), settings.check().unwrap()).unwrap();
+            let lik: Vec<Vec<f64>> = states
+                .iter()
+                .map(|&n| {
+                    let mut g: Vec<f64> = (0..n)
+                        .map(|_| if rng.random_bool(0.3) { 0.0 } else { rng.random_range(0.0..1.0) })
+                        .collect();
+                    g[rng.random_range(0..n)] = 1.0;
+                    g
+                })
+                .collect();
+            let f = states.len();
+            for group in 1u32..1 << f {
+                let members: Vec<usize> = (0..f).filter(|i| group >> i & 1 == 1).collect();
+                let only: Vec<Option<Vec<f64>>> = (0..f)
+                    .map(|i| (group >> i & 1 == 1).then(|| lik[i].clone()))
+                    .collect();
+                let on_poses: Vec<MassFunction> = members
+                    .iter()
+                    .map(|&i| {
+                        let m = from_likelihoods(constructor, &lik[i]).unwrap().mass;
+                        model.features()[i].refining.extend(&m).unwrap()
+                    })
+                    .collect();
+                let reference = conflict_level_all(&on_poses).unwrap();
+                let fast = t.full_conflict_level(&only).unwrap();
+                if reference.is_finite() {
+                    prop_assert!((fast - reference).abs() <= 1e-9 * (1.0 + reference),
+                        "group {members:?}: fast {fast}, Dempster {reference}");
+                    let combined = dempster_all(&on_poses).unwrap().mass.unwrap();
+                    let pl = combined.contour();
+                    let total: f64 = pl.iter().sum();
+                    let est = t.track(&only).unwrap();
+                    prop_assert_eq!(&est.group, &members);
+                    for (q, (&got, &want)) in est.plausibility.iter().zip(&pl).enumerate() {
+                        prop_assert!((got - want / total).abs() <= 1e-9,
+                            "group {members:?}, pose {q}: {got} vs {}", want / total);
+                    }
+                } else {
+                    prop_assert_eq!(fast, f64::INFINITY, "group {:?}", members);
+                }
+            }
+        }
+    }
+}
