@@ -696,7 +696,8 @@ fn random_model(rng: &mut ChaCha8Rng) -> (TrackerModel, Vec<usize>) {
 mod fast_paths {
     use super::*;
     use evitrack::evidence::conflict_level_all;
-    use proptest::prelude::*;
+    use proptest::prelude::{any, prop_assert, prop_assert_eq, proptest, ProptestConfig};
+    use rand::Rng;
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(64))]
