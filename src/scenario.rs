@@ -17,6 +17,7 @@ use crate::estimator::{GpSettings, KnnSettings, Method, MAX_FEATURES_GROUP_ERROR
 use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
+use crate::report::{Comparison, Side};
 use crate::seed;
 use crate::sim::{Motion, SimSettings};
 use crate::track::{SelectionPolicy, ThresholdRule, TrackSettings, MAX_FEATURES};
@@ -495,6 +496,91 @@ pub struct Sweep {
     pub variant: Vec<VariantSpec>,
     /// Dotted path → values; the variants are their cartesian product (`[sweep.grid]`).
     pub grid: BTreeMap<String, Vec<toml::Value>>,
+    /// Master seeds every variant runs with (`seeds = 10`: its own seed and the next 9; or a
+    /// list); default: the variant's own seed only.
+    pub seeds: Option<SeedList>,
+    /// Comparisons between variants, measured as paired differences across the seeds
+    /// (`[[sweep.finding]]`).
+    pub finding: Vec<FindingSpec>,
+}
+
+/// Master seeds: a count (from each variant's own seed on) or a list.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum SeedList {
+    /// This many consecutive seeds, from the variant's own.
+    Count(u64),
+    /// These seeds.
+    List(Vec<u64>),
+}
+
+impl SeedList {
+    /// Reads `10` or `1,4,7` (the command line's form).
+    ///
+    /// # Errors
+    /// What is wrong, as a sentence.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let list = if text.contains(',') {
+            let seeds: Result<Vec<u64>, _> = text.split(',').map(|s| s.trim().parse()).collect();
+            SeedList::List(seeds.map_err(|e| format!("`{text}`: {e}"))?)
+        } else {
+            SeedList::Count(text.trim().parse().map_err(|e| format!("`{text}`: {e}"))?)
+        };
+        list.check()?;
+        Ok(list)
+    }
+
+    /// At least one seed, none twice, a count that does not overflow.
+    ///
+    /// # Errors
+    /// What is wrong, as a sentence.
+    pub fn check(&self) -> Result<(), String> {
+        match self {
+            SeedList::Count(0) => Err("seeds: give at least one".into()),
+            SeedList::Count(n) if *n > 10_000 => Err(format!("seeds: {n} is more than 10000")),
+            SeedList::Count(_) => Ok(()),
+            SeedList::List(list) if list.is_empty() => Err("seeds: the list is empty".into()),
+            SeedList::List(list) => match list
+                .iter()
+                .enumerate()
+                .find(|(i, s)| list[..*i].contains(s))
+            {
+                Some((_, s)) => Err(format!("seeds: {s} is listed twice")),
+                None => Ok(()),
+            },
+        }
+    }
+
+    /// The seeds of a variant whose own seed is `own`.
+    pub fn expand(&self, own: u64) -> Vec<u64> {
+        match self {
+            SeedList::Count(n) => (0..*n).map(|k| own.wrapping_add(k)).collect(),
+            SeedList::List(list) => list.clone(),
+        }
+    }
+}
+
+/// A comparison between two variants (or methods) of a file: `left − right` of the mean errors,
+/// paired by seed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FindingSpec {
+    /// How the README states it (`b < a`).
+    pub name: String,
+    /// Left variant, by the name after the scenario's (`b`).
+    pub left: String,
+    /// Right variant.
+    pub right: String,
+    /// Method of the left side (default `evidential`).
+    #[serde(default = "evidential_name")]
+    pub method: String,
+    /// Method of the right side (default: the left's).
+    #[serde(default)]
+    pub right_method: Option<String>,
+}
+
+fn evidential_name() -> String {
+    "evidential".into()
 }
 
 /// One listed variant: a name and the values it replaces.
@@ -518,6 +604,10 @@ pub struct ScenarioSet {
     /// The variants, in file order (listed first, then the grid); a file without a sweep section
     /// has one variant, the base itself.
     pub variants: Vec<CheckedScenario>,
+    /// The seeds `[sweep] seeds` asks for (`None`: each variant's own).
+    pub seeds: Option<SeedList>,
+    /// The comparisons of `[[sweep.finding]]`, with full variant names.
+    pub comparisons: Vec<Comparison>,
 }
 
 impl ScenarioSet {
@@ -539,7 +629,27 @@ impl ScenarioSet {
             source: "built-in".into(),
             variants: vec![base.clone()],
             base,
+            seeds: None,
+            comparisons: Vec::new(),
         })
+    }
+
+    /// Every variant once per seed (`seeds` replaces the file's `[sweep] seeds`), variant by
+    /// variant, seeds in the order given.
+    ///
+    /// # Errors
+    /// A variant that does not check with one of the seeds.
+    pub fn seeded(&self, seeds: Option<&SeedList>) -> Result<Vec<CheckedScenario>, ScenarioError> {
+        let Some(list) = seeds.or(self.seeds.as_ref()) else {
+            return Ok(self.variants.clone());
+        };
+        let mut runs = Vec::new();
+        for variant in &self.variants {
+            for seed in list.expand(variant.seed) {
+                runs.push(variant.with_seed(seed)?);
+            }
+        }
+        Ok(runs)
     }
 
     /// Reads and checks a scenario file.
@@ -622,10 +732,50 @@ impl ScenarioSet {
                 })
                 .collect::<Result<Vec<_>, _>>()?
         };
+        let sweep_error = |message: String| ScenarioError::Variant {
+            path: source.to_string(),
+            variant: "[sweep]".into(),
+            message,
+        };
+        if let Some(seeds) = &sweep.seeds {
+            seeds.check().map_err(sweep_error)?;
+        }
+        let comparisons = sweep
+            .finding
+            .iter()
+            .map(|f| {
+                let side = |short: &str, method: &str| {
+                    let full = format!("{}-{short}", base.name());
+                    let variant = variants
+                        .iter()
+                        .find(|v| v.name() == full || v.name() == short)
+                        .ok_or_else(|| {
+                            sweep_error(format!("finding `{}`: no variant `{short}`", f.name))
+                        })?;
+                    if !variant.estimators.iter().any(|m| m.name() == method) {
+                        return Err(sweep_error(format!(
+                            "finding `{}`: variant `{short}` does not run method `{method}`",
+                            f.name
+                        )));
+                    }
+                    Ok(Side {
+                        scenario: variant.name().to_string(),
+                        method: method.to_string(),
+                    })
+                };
+                Ok(Comparison {
+                    name: f.name.clone(),
+                    left: side(&f.left, &f.method)?,
+                    right: side(&f.right, f.right_method.as_deref().unwrap_or(&f.method))?,
+                })
+            })
+            .collect::<Result<Vec<_>, ScenarioError>>()?;
         Ok(Self {
             source: source.to_string(),
             base,
             variants,
+            seeds: sweep.seeds.clone(),
+            comparisons,
         })
     }
 }

@@ -166,3 +166,59 @@ fn every_shipped_scenario_file_is_valid() {
     }
     assert!(count >= 1);
 }
+
+#[test]
+fn seeds_and_findings_of_a_sweep() {
+    let text = r#"
+name = "s"
+[sweep]
+seeds = 3
+[[sweep.variant]]
+name = "x"
+[[sweep.variant]]
+name = "y"
+set = { seed = 7 }
+[[sweep.finding]]
+name = "x < y"
+left = "x"
+right = "s-y"
+"#;
+    let set = ScenarioSet::parse(text, "s.toml").unwrap();
+    let runs = set.seeded(None).unwrap();
+    let seeds: Vec<(String, u64)> = runs
+        .iter()
+        .map(|r| (r.name().to_string(), r.seed))
+        .collect();
+    assert_eq!(
+        seeds,
+        [
+            ("s-x", 1),
+            ("s-x", 2),
+            ("s-x", 3),
+            ("s-y", 7),
+            ("s-y", 8),
+            ("s-y", 9)
+        ]
+        .map(|(n, s)| (n.to_string(), s))
+    );
+    let list = SeedList::parse("4,2").unwrap();
+    assert_eq!(set.seeded(Some(&list)).unwrap().len(), 4);
+    assert_eq!(set.comparisons[0].left.scenario, "s-x");
+    assert_eq!(set.comparisons[0].right.scenario, "s-y");
+    assert_eq!(set.comparisons[0].left.method, "evidential");
+    // Seeds are checked, and a finding must name a variant and a method it runs.
+    assert!(SeedList::parse("0").is_err() && SeedList::parse("1,1").is_err());
+    assert!(SeedList::parse("x").is_err());
+    let bad = text.replace("right = \"s-y\"", "right = \"z\"");
+    assert!(ScenarioSet::parse(&bad, "s.toml")
+        .unwrap_err()
+        .to_string()
+        .contains("no variant `z`"));
+    let bad = text.replace("right = \"s-y\"", "right = \"y\"\nmethod = \"svm\"");
+    assert!(ScenarioSet::parse(&bad, "s.toml").is_err());
+    let bad = text.replace("seeds = 3", "seeds = []");
+    assert!(ScenarioSet::parse(&bad, "s.toml")
+        .unwrap_err()
+        .to_string()
+        .contains("empty"));
+}

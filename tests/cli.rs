@@ -437,8 +437,9 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
         String::from_utf8_lossy(&out.stderr)
     );
     let read = |p: std::path::PathBuf| -> Vec<serde_json::Value> {
-        let mut rows: Vec<serde_json::Value> =
+        let file: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap();
+        let mut rows: Vec<serde_json::Value> = file["runs"].as_array().unwrap().clone();
         for row in &mut rows {
             row["timings"] = serde_json::Value::Null;
             for m in row["methods"].as_array_mut().unwrap() {
@@ -532,4 +533,62 @@ fn the_readme_scenario_example_is_a_valid_scenario() {
     // One listed variant and a grid of three.
     assert_eq!(set.variants.len(), 4);
     assert!(!set.base.fault_plan().is_empty());
+}
+
+#[test]
+fn sweeps_over_seeds_give_intervals_and_paired_findings_whatever_the_job_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("seeds.toml");
+    let extra = "[[sweep.variant]]\nname = \"n2\"\n[[sweep.variant]]\nname = \"n3\"\n\
+                 set = { \"model.states\" = 3 }\n[[sweep.finding]]\nname = \"n3 < n2\"\n\
+                 left = \"n3\"\nright = \"n2\"\n";
+    std::fs::write(&scenario, small_scenario("seeds", extra)).unwrap();
+    let sweep = |jobs: &str| {
+        let out = dir.path().join(format!("out{jobs}"));
+        let run = evitrack(
+            &[
+                "sweep",
+                scenario.to_str().unwrap(),
+                "--seeds",
+                "3",
+                "--jobs",
+                jobs,
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            "",
+        );
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let file: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).unwrap())
+                .unwrap();
+        let frames = std::fs::read(out.join("seeds-n3/seed-3/frames.csv")).unwrap();
+        (
+            file,
+            frames,
+            String::from_utf8_lossy(&run.stdout).into_owned(),
+        )
+    };
+    let (one, frames_one, table) = sweep("1");
+    let (two, frames_two, _) = sweep("2");
+    assert_eq!(
+        one["across_seeds"], two["across_seeds"],
+        "the job count changes nothing"
+    );
+    assert_eq!(frames_one, frames_two);
+    assert_eq!(one["runs"].as_array().unwrap().len(), 6);
+    let finding = &one["across_seeds"]["findings"][0];
+    assert_eq!(finding["comparison"]["name"], "n3 < n2");
+    assert_eq!(finding["difference"]["n"], 3);
+    assert!(finding["difference"]["half_width"].as_f64().is_some());
+    assert!(
+        table.contains("n3 < n2") && table.contains(" ± "),
+        "{table}"
+    );
+    let variant = &one["across_seeds"]["variants"][0];
+    assert_eq!(variant["seeds"], serde_json::json!([1, 2, 3]));
 }

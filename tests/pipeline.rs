@@ -1,26 +1,34 @@
 //! The whole pipeline on the paper's table: the CI regression guard on estimation error.
 
 use evitrack::experiment::{run_all, Workbench};
-use evitrack::report::RunSummary;
-use evitrack::scenario::{CheckedScenario, ScenarioSet};
+use evitrack::report::{Comparison, RunSummary, SeedReport, Verdict};
+use evitrack::scenario::{CheckedScenario, ScenarioSet, SeedList};
 
 fn paper() -> ScenarioSet {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/paper.toml");
     ScenarioSet::load(std::path::Path::new(path)).expect("scenarios/paper.toml is valid")
 }
 
-fn run_paper() -> Vec<RunSummary> {
+/// Every paper variant with master seeds 1 to 10 (variant by variant), and the file's findings.
+fn run_paper() -> (Vec<RunSummary>, Vec<Comparison>) {
     let set = paper();
+    let runs = set.seeded(Some(&SeedList::Count(10))).unwrap();
     let bench = Workbench::new();
-    run_all(&set.variants, 2, &bench, &|_, _, _, _| {})
+    let summaries = run_all(&runs, 2, &bench, &|_, _, _, _| {})
         .into_iter()
-        .zip(&set.variants)
-        .map(|(result, variant)| {
+        .zip(&runs)
+        .map(|(result, run)| {
             result
-                .unwrap_or_else(|e| panic!("variant {} failed: {e}", variant.name))
+                .unwrap_or_else(|e| panic!("variant {} failed: {e}", run.name))
                 .summary
         })
-        .collect()
+        .collect();
+    (summaries, set.comparisons)
+}
+
+/// Within 3 % of the README's figure.
+fn close(value: f64, readme: f64) -> bool {
+    (value - readme).abs() <= 0.03 * readme.abs()
 }
 
 fn mean(summary: &RunSummary) -> f64 {
@@ -33,7 +41,68 @@ fn mean(summary: &RunSummary) -> f64 {
 
 #[test]
 fn paper_table_meets_its_expectations() {
-    let summaries = run_paper();
+    let (all, comparisons) = run_paper();
+    // Over 10 seeds (README, "The paper's table"): each finding a paired difference.
+    let report = SeedReport::new(&all, &comparisons);
+    let finding = |name: &str| {
+        report
+            .findings
+            .iter()
+            .find(|f| f.comparison.name == name)
+            .unwrap_or_else(|| panic!("no finding {name}"))
+    };
+    for (name, readme, verdict) in [
+        ("b < a", -1.1731, Verdict::LeftLower),
+        ("c > a", 0.0107, Verdict::LeftHigher),
+        ("e < b", -1.2705, Verdict::LeftLower),
+    ] {
+        let f = finding(name);
+        assert_eq!(f.difference.n, 10);
+        assert!(close(f.difference.mean, readme), "{name}: {f:?}");
+        assert_eq!(f.verdict, verdict, "{name}: {f:?}");
+    }
+    // Seed by seed, (c) < (a) on 4 of the 10 seeds (2, 3, 7 and 8).
+    let evidential = |variant: &str, seed: u64| {
+        let run = all
+            .iter()
+            .find(|r| r.scenario == variant && r.seed == seed)
+            .unwrap();
+        mean(run)
+    };
+    let favour_c: Vec<u64> = (1..=10)
+        .filter(|&k| evidential("paper-c", k) < evidential("paper-a", k))
+        .collect();
+    assert_eq!(favour_c, [2, 3, 7, 8]);
+    let d = finding("d = a");
+    assert_eq!(
+        (d.difference.mean, d.difference.half_width),
+        (0.0, Some(0.0))
+    );
+    // Every method against every later one, in every variant: gp < knn < evidential < centre.
+    for f in report
+        .findings
+        .iter()
+        .filter(|f| f.comparison.name.contains('−'))
+    {
+        let expected = match f.comparison.name.as_str() {
+            "evidential − knn" | "evidential − gp" | "knn − gp" => Verdict::LeftHigher,
+            _ => Verdict::LeftLower,
+        };
+        assert_eq!(f.verdict, expected, "{f:?}");
+    }
+    for (variant, readme) in [
+        ("paper-a", 4.7065),
+        ("paper-b", 3.5335),
+        ("paper-c", 4.7172),
+        ("paper-e", 2.2629),
+    ] {
+        let v = (report.variants.iter())
+            .find(|v| v.side.scenario == variant && v.side.method == "evidential")
+            .unwrap();
+        assert!(close(v.mean_error.mean, readme), "{variant}: {v:?}");
+    }
+    // Seed 1, each variant's own: the table and the expectations.
+    let summaries: Vec<RunSummary> = all.into_iter().filter(|s| s.seed == 1).collect();
     let names: Vec<&str> = summaries.iter().map(|s| s.scenario.as_str()).collect();
     assert_eq!(
         names,

@@ -10,7 +10,20 @@ use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use super::{fmt_mm, load_scenarios};
 use evitrack::experiment::{self, Workbench};
 use evitrack::report::{self, write_run, EvidentialSummary, MethodSummary, RunSummary, Table};
-use evitrack::scenario::ScenarioSet;
+use evitrack::report::{Comparison, SeedReport};
+use evitrack::scenario::{CheckedScenario, ScenarioSet, SeedList};
+
+fn parse_seeds(text: &str) -> Result<SeedList, String> {
+    SeedList::parse(text)
+}
+
+/// What `sweep.json` holds: every run, the comparisons asked for, and the report across seeds.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SweepFile {
+    runs: Vec<RunSummary>,
+    comparisons: Vec<Comparison>,
+    across_seeds: SeedReport,
+}
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -33,9 +46,16 @@ pub struct SweepArgs {
     /// Variants run at once (default: the number of cores).
     #[arg(long)]
     jobs: Option<usize>,
-    /// Compare against each variant's expectations; exit 1 with a list of what regressed.
+    /// Compare against each variant's expectations (on its own seed); exit 1 with a list of what
+    /// regressed.
     #[arg(long)]
     check: bool,
+    /// Master seeds for every variant: a count (`10`: each variant's own seed and the next 9) or
+    /// a list (`1,4,7`). Prints each variant's mean ± 95 % interval across them and each
+    /// comparison as a paired difference. Default: the file's `[sweep] seeds`, else each
+    /// variant's own seed.
+    #[arg(long, value_parser = parse_seeds)]
+    seeds: Option<SeedList>,
     /// Run only slice i of n (1-based, e.g. `2/4`) of the variants, for batch schedulers; merge
     /// the shards' JSON files with `evitrack merge`.
     #[arg(long)]
@@ -266,29 +286,35 @@ fn parse_shard(text: &str) -> Result<(usize, usize)> {
 }
 
 pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
-    let mut variants = Vec::new();
+    let mut variants: Vec<CheckedScenario> = Vec::new();
+    let mut runs = Vec::new();
+    let mut comparisons = Vec::new();
     for path in &args.scenarios {
         let set = ScenarioSet::load(path)?;
+        runs.extend(set.seeded(args.seeds.as_ref())?);
+        comparisons.extend(set.comparisons.iter().cloned());
         variants.extend(set.variants);
     }
     let names: std::collections::HashSet<&str> = variants.iter().map(|v| v.name()).collect();
     if names.len() != variants.len() {
         bail!("two variants of these scenario files have the same name: rename one scenario");
     }
-    let total = variants.len();
+    // Expectations hold for each variant's own seed.
+    let own: std::collections::HashSet<(String, u64)> = variants
+        .iter()
+        .map(|v| (v.name().to_string(), v.seed))
+        .collect();
+    let seeded = runs.len() > variants.len();
+    let total = runs.len();
     let shard = args.shard.as_deref().map(parse_shard).transpose()?;
     if let Some((i, n)) = shard {
-        variants = variants
+        runs = runs
             .into_iter()
             .enumerate()
             .filter(|(k, _)| k % n == i)
             .map(|(_, v)| v)
             .collect();
-        eprintln!(
-            "shard {}/{n}: {} of {total} variants",
-            i + 1,
-            variants.len()
-        );
+        eprintln!("shard {}/{n}: {} of {total} runs", i + 1, runs.len());
     }
     let jobs = args.jobs.unwrap_or_else(|| {
         std::thread::available_parallelism()
@@ -296,54 +322,97 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
             .unwrap_or(1)
     });
     let bench = Workbench::new();
-    let labels: Vec<String> = variants.iter().map(|v| v.name().to_string()).collect();
+    let folder = |run: &CheckedScenario| {
+        let dir = args.out.join(run.name());
+        if seeded {
+            dir.join(format!("seed-{}", run.seed))
+        } else {
+            dir
+        }
+    };
+    let labels: Vec<String> = runs
+        .iter()
+        .map(|v| match seeded {
+            true => format!("{} seed {}", v.name(), v.seed),
+            false => v.name().to_string(),
+        })
+        .collect();
     let bars = StageBars::new(&labels);
     let clock = std::time::Instant::now();
-    let outputs = experiment::run_all(&variants, jobs, &bench, &|i, stage, done, total| {
+    let outputs = experiment::run_all(&runs, jobs, &bench, &|i, stage, done, total| {
         bars.update(i, stage, done, total)
     });
     bars.finish();
     let elapsed = clock.elapsed().as_secs_f64();
     let mut summaries = Vec::new();
     let mut failures = Vec::new();
-    for (variant, output) in variants.iter().zip(outputs) {
+    for ((run, output), label) in runs.iter().zip(outputs).zip(&labels) {
         match output {
             Ok(output) => {
-                // A variant whose files cannot be written is reported, not the whole sweep lost.
-                if let Err(error) = write_run(&args.out.join(variant.name()), &output) {
-                    failures.push(format!("{}: {error}", variant.name()));
+                // A run whose files cannot be written is reported, not the whole sweep lost.
+                if let Err(error) = write_run(&folder(run), &output) {
+                    failures.push(format!("{label}: {error}"));
                 }
                 summaries.push(output.summary);
             }
-            Err(error) => failures.push(format!("{}: {error}", variant.name())),
+            Err(error) => failures.push(format!("{label}: {error}")),
         }
     }
     let file_name = match shard {
         Some((i, n)) => format!("sweep-shard-{}-of-{n}.json", i + 1),
         None => "sweep.json".to_string(),
     };
-    write_sweep_report(&args.out, &file_name, &summaries)?;
+    write_sweep_report(&args.out, &file_name, &summaries, &comparisons)?;
     eprintln!(
-        "{} variants in {elapsed:.1} s on {jobs} jobs; per-variant outputs in {}/<variant>/",
+        "{} runs in {elapsed:.1} s on {jobs} jobs; per-run outputs in {}/<variant>/{}",
         summaries.len(),
-        args.out.display()
+        args.out.display(),
+        if seeded { "seed-<seed>/" } else { "" }
     );
-    finish_sweep(&summaries, &failures, args.check)
+    let checked: Vec<RunSummary> = summaries
+        .into_iter()
+        .filter(|s| own.contains(&(s.scenario.clone(), s.seed)))
+        .collect();
+    finish_sweep(&checked, &failures, args.check)
 }
 
 /// Prints the table, writes JSON, CSV and plots of a set of run summaries.
-fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> Result<()> {
+fn write_sweep_report(
+    out: &Path,
+    json_name: &str,
+    all_runs: &[RunSummary],
+    comparisons: &[Comparison],
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let refs: Vec<&RunSummary> = summaries.iter().collect();
-    print_tables(&refs);
+    let across_seeds = SeedReport::new(all_runs, comparisons);
+    // Tables and plots show each variant's first run; with several seeds per variant, the
+    // tables across seeds follow.
+    let mut first: Vec<&RunSummary> = Vec::new();
+    for run in all_runs {
+        if !first.iter().any(|f| f.scenario == run.scenario) {
+            first.push(run);
+        }
+    }
+    print_tables(&first);
+    if first.len() < all_runs.len() {
+        println!("{}", seed_tables(&across_seeds));
+    }
+    let summaries: Vec<RunSummary> = first.iter().map(|&s| s.clone()).collect();
+    let summaries = summaries.as_slice();
     let json_path = out.join(json_name);
-    std::fs::write(&json_path, serde_json::to_string_pretty(summaries)? + "\n")
+    let file = SweepFile {
+        runs: all_runs.to_vec(),
+        comparisons: comparisons.to_vec(),
+        across_seeds,
+    };
+    std::fs::write(&json_path, serde_json::to_string_pretty(&file)? + "\n")
         .with_context(|| format!("writing {}", json_path.display()))?;
     let csv_path = out.join(json_name.replace(".json", ".csv"));
     let mut csv = csv::Writer::from_path(&csv_path)
         .with_context(|| format!("writing {}", csv_path.display()))?;
     csv.write_record([
         "scenario",
+        "seed",
         "method",
         "samples",
         "states",
@@ -370,7 +439,7 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
         "left_out_recall",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
-    for s in summaries {
+    for s in all_runs {
         for m in &s.methods {
             let evidential = evidential_of(s, m);
             let states = states_text(evidential, " ");
@@ -385,6 +454,7 @@ fn write_sweep_report(out: &Path, json_name: &str, summaries: &[RunSummary]) -> 
             };
             csv.write_record([
                 s.scenario.clone(),
+                s.seed.to_string(),
                 m.method.clone(),
                 s.samples.to_string(),
                 states,
@@ -514,20 +584,63 @@ fn finish_sweep(summaries: &[RunSummary], failures: &[String], check: bool) -> R
 
 pub fn merge(args: &MergeArgs) -> Result<ExitCode> {
     let mut summaries: Vec<RunSummary> = Vec::new();
+    let mut comparisons: Vec<Comparison> = Vec::new();
     for path in &args.shards {
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let shard: Vec<RunSummary> = serde_json::from_str(&text)
+        let shard: SweepFile = serde_json::from_str(&text)
             .with_context(|| format!("{} is not a sweep result file", path.display()))?;
-        summaries.extend(shard);
+        summaries.extend(shard.runs);
+        for c in shard.comparisons {
+            if !comparisons.contains(&c) {
+                comparisons.push(c);
+            }
+        }
     }
     let mut seen = std::collections::HashSet::new();
-    if let Some(dup) = summaries.iter().find(|s| !seen.insert(s.scenario.clone())) {
+    if let Some(dup) = summaries
+        .iter()
+        .find(|s| !seen.insert((s.scenario.clone(), s.seed)))
+    {
         bail!(
-            "variant `{}` appears in two shard files: merge each shard once",
-            dup.scenario
+            "variant `{}` with seed {} appears in two shard files: merge each shard once",
+            dup.scenario,
+            dup.seed
         );
     }
-    write_sweep_report(&args.out, "sweep.json", &summaries)?;
+    write_sweep_report(&args.out, "sweep.json", &summaries, &comparisons)?;
     finish_sweep(&summaries, &[], args.check)
+}
+
+/// Each variant's mean error across seeds, then each comparison's paired difference.
+fn seed_tables(report: &SeedReport) -> String {
+    let mut variants = Table::new(["scenario", "method", "seeds", "mean error ± 95 % (mm)"]);
+    for v in &report.variants {
+        variants.push([
+            v.side.scenario.clone(),
+            v.side.method.clone(),
+            v.seeds.len().to_string(),
+            v.mean_error.text(4),
+        ]);
+    }
+    let mut findings = Table::new([
+        "finding",
+        "left",
+        "right",
+        "seeds",
+        "left − right ± 95 % (mm)",
+        "verdict",
+    ]);
+    for f in &report.findings {
+        let side = |s: &evitrack::report::Side| format!("{} {}", s.scenario, s.method);
+        findings.push([
+            f.comparison.name.clone(),
+            side(&f.comparison.left),
+            side(&f.comparison.right),
+            f.difference.n.to_string(),
+            f.difference.text(4),
+            f.verdict.text().to_string(),
+        ]);
+    }
+    format!("{variants}\n{findings}")
 }

@@ -4,6 +4,7 @@
 mod files;
 mod plot;
 mod records;
+mod seeds;
 mod table;
 
 pub use files::write_run;
@@ -12,6 +13,7 @@ pub use records::{
     detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
     RunSummary, Timings,
 };
+pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};
