@@ -11,5 +11,6 @@ mod front_door;
 mod hmm;
 mod model;
 mod pipeline;
+mod reference;
 mod sim;
 mod track;

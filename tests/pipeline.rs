@@ -1,7 +1,7 @@
 //! The whole pipeline on the paper's table: the CI regression guard on estimation error.
 
 use evitrack::experiment::{run_all, Workbench};
-use evitrack::report::{Comparison, RunSummary, SeedReport, Verdict};
+use evitrack::report::{Comparison, FrameRecord, RunSummary, SeedReport, Verdict};
 use evitrack::scenario::{CheckedScenario, ScenarioSet, SeedList};
 
 fn paper() -> ScenarioSet {
@@ -9,21 +9,29 @@ fn paper() -> ScenarioSet {
     ScenarioSet::load(std::path::Path::new(path)).expect("scenarios/paper.toml is valid")
 }
 
-/// Every paper variant with master seeds 1 to 10 (variant by variant), and the file's findings.
-fn run_paper() -> (Vec<RunSummary>, Vec<Comparison>) {
+/// Every paper variant with master seeds 1 to 10 (variant by variant), the file's findings, and
+/// the evidential tracker's frames of the seed-1 runs (with their variant).
+fn run_paper() -> (Vec<RunSummary>, Vec<Comparison>, Vec<(String, FrameRecord)>) {
     let set = paper();
     let runs = set.seeded(Some(&SeedList::Count(10))).unwrap();
     let bench = Workbench::new();
-    let summaries = run_all(&runs, 2, &bench, &|_, _, _, _| {})
+    let mut summaries = Vec::new();
+    let mut frames = Vec::new();
+    for (result, run) in run_all(&runs, 2, &bench, &|_, _, _, _| {})
         .into_iter()
         .zip(&runs)
-        .map(|(result, run)| {
-            result
-                .unwrap_or_else(|e| panic!("variant {} failed: {e}", run.name))
-                .summary
-        })
-        .collect();
-    (summaries, set.comparisons)
+    {
+        let output = result.unwrap_or_else(|e| panic!("variant {} failed: {e}", run.name));
+        if run.seed == 1 {
+            frames.extend(
+                (output.records.into_iter())
+                    .filter(|r| r.method == "evidential")
+                    .map(|r| (run.name().to_string(), r)),
+            );
+        }
+        summaries.push(output.summary);
+    }
+    (summaries, set.comparisons, frames)
 }
 
 /// Within 3 % of the README's figure.
@@ -41,7 +49,13 @@ fn mean(summary: &RunSummary) -> f64 {
 
 #[test]
 fn paper_table_meets_its_expectations() {
-    let (all, comparisons) = run_paper();
+    let (all, comparisons, frames) = run_paper();
+    // Every frame's estimate, group and level, against the stored reference.
+    assert_eq!(frames.len(), 5 * 200);
+    super::reference::check_text(
+        "paper-estimates.csv",
+        &super::reference::estimates_text(&frames),
+    );
     // Over 10 seeds (README, "The paper's table"): each finding a paired difference.
     let report = SeedReport::new(&all, &comparisons);
     let finding = |name: &str| {
