@@ -1,8 +1,8 @@
 //! Stored reference outputs: the evidential tracker's per-frame estimates of the paper table, a
 //! rendered frame and its feature vector. Runs are deterministic per seed, so any change to these
 //! numbers is a change of behaviour: it must be deliberate. To accept one, regenerate with
-//! `EVITRACK_UPDATE_REFERENCE=1 cargo test --release reference` and commit the files with the
-//! change that explains them.
+//! `EVITRACK_UPDATE_REFERENCE=1 cargo test --release -- reference paper_table` and commit the
+//! files with the change that explains them.
 
 use std::path::PathBuf;
 
