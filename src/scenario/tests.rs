@@ -1,4 +1,4 @@
-//! Unit tests of `scenario.rs`.
+//! Unit tests of the `scenario` room.
 use super::*;
 
 const BASE: &str = r#"
