@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::RunSummary;
+pub use crate::scenario::{Comparison, Side};
 
 /// A mean across seeds with its 95 % confidence interval (Student's t, n − 1 degrees of freedom).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -95,26 +96,6 @@ impl Verdict {
             Verdict::TooFewSeeds => "one seed: no interval",
         }
     }
-}
-
-/// One side of a comparison: a variant's method.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Side {
-    /// Full variant name (`paper-b`).
-    pub scenario: String,
-    /// Method name.
-    pub method: String,
-}
-
-/// A comparison to make: `left − right` of the mean errors, paired by seed.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Comparison {
-    /// How the README states it (`b < a`).
-    pub name: String,
-    /// Left side.
-    pub left: Side,
-    /// Right side.
-    pub right: Side,
 }
 
 /// One variant's method across seeds.

@@ -488,7 +488,7 @@ impl CheckedScenario {
 
 mod sweep;
 
-pub use sweep::{FindingSpec, ScenarioSet, SeedList, Sweep, VariantSpec};
+pub use sweep::{Comparison, FindingSpec, ScenarioSet, SeedList, Side, Sweep, VariantSpec};
 
 #[cfg(test)]
 mod tests;

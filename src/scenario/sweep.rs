@@ -7,7 +7,6 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::{CheckedScenario, Scenario, ScenarioError};
-use crate::report::{Comparison, Side};
 
 /// The `[sweep]` section: variants of the base scenario.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -386,4 +385,24 @@ fn set_path(root: &mut toml::Value, path: &str, value: toml::Value) -> Result<()
             .or_insert_with(|| toml::Value::Table(toml::Table::new()));
     }
     Ok(())
+}
+
+/// One side of a comparison: a variant's method.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Side {
+    /// Full variant name (`paper-b`).
+    pub scenario: String,
+    /// Method name.
+    pub method: String,
+}
+
+/// A comparison to make: `left − right` of the mean errors, paired by seed.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Comparison {
+    /// How the README states it (`b < a`).
+    pub name: String,
+    /// Left side.
+    pub left: Side,
+    /// Right side.
+    pub right: Side,
 }
