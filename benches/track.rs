@@ -97,6 +97,24 @@ fn setup(
     (tracker, lik)
 }
 
+/// Times tracking one frame.
+fn bench_frame(
+    group: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    id: BenchmarkId,
+    tracker: &Tracker,
+    lik: &[Option<Vec<f64>>],
+) {
+    group.bench_with_input(id, lik, |b, lik| {
+        b.iter(|| {
+            black_box(
+                tracker
+                    .track(black_box(lik))
+                    .expect("one entry per feature"),
+            )
+        })
+    });
+}
+
 fn bench(c: &mut Criterion) {
     let dir = |deg: f64| [deg.to_radians().cos(), deg.to_radians().sin()];
     let paper_like: Vec<Feat> = [
@@ -137,15 +155,7 @@ fn bench(c: &mut Criterion) {
             };
             let (tracker, lik) = setup(feats, settings, &[], 2026);
             let id = BenchmarkId::new(name, format!("{constructor:?}").to_lowercase());
-            group.bench_with_input(id, &lik, |b, lik| {
-                b.iter(|| {
-                    black_box(
-                        tracker
-                            .track(black_box(lik))
-                            .expect("one entry per feature"),
-                    )
-                })
-            });
+            bench_frame(&mut group, id, &tracker, &lik);
         }
     }
     // Two corrupted features; the threshold just above the clean frame's level.
@@ -177,15 +187,7 @@ fn bench(c: &mut Criterion) {
                 format!("faulty_{policy}"),
                 format!("{constructor:?}").to_lowercase(),
             );
-            group.bench_with_input(id, &lik, |b, lik| {
-                b.iter(|| {
-                    black_box(
-                        tracker
-                            .track(black_box(lik))
-                            .expect("one entry per feature"),
-                    )
-                })
-            });
+            bench_frame(&mut group, id, &tracker, &lik);
         }
     }
     group.finish();

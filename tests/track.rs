@@ -443,9 +443,8 @@ fn bad_inputs_give_flags_not_panics() {
     );
 }
 
-/// Three features on three poses, pairwise compatible but with no common pose: the group of three
-/// has infinite conflict (Theorem 4.3 case), so groups of two are used.
-fn triangle(policy: SelectionPolicy) -> (Tracker, Vec<Option<Vec<f64>>>) {
+/// Three features on three poses, each with two states: a feature's state 1 is one pose.
+fn triangle_model() -> TrackerModel {
     let poses = vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
     let assignments = [[0, 0, 1], [0, 1, 0], [1, 0, 0]];
     let features = assignments
@@ -455,15 +454,17 @@ fn triangle(policy: SelectionPolicy) -> (Tracker, Vec<Option<Vec<f64>>>) {
             validation_error: None,
         })
         .collect();
+    TrackerModel::new(poses, features).unwrap()
+}
+
+/// The triangle measured on each feature's state 0: pairwise compatible but with no common pose,
+/// so the group of three has infinite conflict (Theorem 4.3 case) and groups of two are used.
+fn triangle(policy: SelectionPolicy) -> (Tracker, Vec<Option<Vec<f64>>>) {
     let settings = TrackSettings {
         selection: policy,
         ..TrackSettings::default()
     };
-    let t = Tracker::new(
-        TrackerModel::new(poses, features).unwrap(),
-        settings.check().unwrap(),
-    )
-    .unwrap();
+    let t = Tracker::new(triangle_model(), settings.check().unwrap()).unwrap();
     (t, vec![Some(vec![1.0, 0.0]); 3])
 }
 
@@ -586,15 +587,6 @@ fn a_group_beyond_the_threshold_is_not_combined_though_every_pair_is_within() {
 
 /// The triangle with soft measurements and the given validation error per pair of features.
 fn weighed_triangle(errors: [f64; 3]) -> FrameEstimate {
-    let poses = vec![[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]];
-    let assignments = [[0, 0, 1], [0, 1, 0], [1, 0, 0]];
-    let features = assignments
-        .iter()
-        .map(|a| TrackedFeature {
-            refining: Refining::from_assignment(2, a).unwrap(),
-            validation_error: None,
-        })
-        .collect();
     let groups = [vec![0, 1], vec![0, 2], vec![1, 2]];
     let group_errors: Vec<GroupError> = groups
         .iter()
@@ -604,10 +596,7 @@ fn weighed_triangle(errors: [f64; 3]) -> FrameEstimate {
             error,
         })
         .collect();
-    let model = TrackerModel::new(poses, features)
-        .unwrap()
-        .with_group_errors(&group_errors)
-        .unwrap();
+    let model = triangle_model().with_group_errors(&group_errors).unwrap();
     let lik = vec![Some(vec![1.0, 0.3]); 3];
     let open = Tracker::new(model.clone(), TrackSettings::default().check().unwrap()).unwrap();
     let pair = open.pairwise_conflicts(&lik).unwrap()[0][1].unwrap();

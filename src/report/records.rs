@@ -456,10 +456,11 @@ impl RunSummary {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
-    fn method(name: &str, errors: &[f64], without: usize) -> MethodSummary {
+    /// A method's summary with these errors and this many frames without an estimate.
+    pub(in crate::report) fn method(name: &str, errors: &[f64], without: usize) -> MethodSummary {
         MethodSummary {
             method: name.into(),
             error: ErrorStats::from_errors(errors),

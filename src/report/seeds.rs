@@ -212,7 +212,7 @@ impl SeedReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::{ErrorStats, MethodSummary, Timings};
+    use crate::report::Timings;
     use crate::scenario::Expectations;
 
     fn run(scenario: &str, seed: u64, errors: &[(&str, f64)]) -> RunSummary {
@@ -226,19 +226,7 @@ mod tests {
             evidential: None,
             methods: errors
                 .iter()
-                .map(|&(m, e)| MethodSummary {
-                    method: m.into(),
-                    error: ErrorStats::from_errors(&[e]),
-                    per_motion: vec![],
-                    frames_without_estimate: 0,
-                    frames_with_missing_features: 0,
-                    frames_with_features_left_out: 0,
-                    frames_fallback: 0,
-                    mean_group_size: None,
-                    fit_seconds: 0.0,
-                    track_seconds: 0.0,
-                    faults: None,
-                })
+                .map(|&(m, e)| crate::report::records::tests::method(m, &[e], 0))
                 .collect(),
             paper_error: None,
             expect: Expectations::default(),
