@@ -398,7 +398,13 @@ impl Tracker {
                 let union = alt_plausibility.iter().fold(0u32, |m, (g, _)| m | g);
                 (Some((estimate, pl, uncertainty)), union, level)
             }
-            None => (self.estimate_group(group, &usable), group, level),
+            // The chosen group is the first alternative when there are any: estimated already.
+            None => match (alts.first(), alt_plausibility.first()) {
+                (Some(a), Some((g, pl))) if *g == group => {
+                    (Some((a.estimate, pl.clone(), a.uncertainty)), group, level)
+                }
+                _ => (self.estimate_group(group, &usable), group, level),
+            },
         };
         flags.excluded = lex(usable_mask & !group);
         flags.combination_failed = result.is_none();
