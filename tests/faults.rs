@@ -100,6 +100,25 @@ fn the_faults_sweep_meets_its_expectations_and_the_readme_claims() {
     }
     let offset_gp = mean(faults(&runs, "offset", "gp").error_corrupted);
     assert!(offset_gp < mean(faults(&runs, "offset", "evidential").error_corrupted));
+    assert_eq!(
+        method(&runs, "clean", "evidential").frames_with_features_left_out,
+        57
+    );
+    // What the image faults change: a dark occluder all 8 features in 19 of its 31 corrupted
+    // frames; salt and pepper the barycentre most.
+    let changed = |variant: &str| -> Vec<Vec<usize>> {
+        (runs[&format!("faults-{variant}")].records.iter())
+            .filter(|r| r.method == "evidential" && r.corrupted())
+            .map(|r| r.faults.as_ref().unwrap().changed.clone())
+            .collect()
+    };
+    let dark_frames = changed("occluder-dark");
+    assert_eq!(dark_frames.len(), 31);
+    assert_eq!(dark_frames.iter().filter(|c| c.len() == 8).count(), 19);
+    let salt = changed("salt-pepper");
+    let count = |j: usize| salt.iter().filter(|c| c.contains(&j)).count();
+    assert_eq!((salt.len(), count(7), count(6)), (56, 47, 43));
+    assert!((0..6).all(|j| (6..=17).contains(&count(j))));
     // A dark occluder changes features coherently: most stay in.
     let dark = faults(&runs, "occluder-dark", "evidential");
     assert!(dark.left_out_recall.unwrap() < 0.6 && mean(dark.error_corrupted) > 5.0);
