@@ -126,7 +126,7 @@ impl Evidential {
                     )));
                 }
                 for mask in 1u32..1 << n {
-                    if mask.count_ones() as usize >= min_size.max(2) {
+                    if mask.count_ones() as usize >= min_size {
                         group_errors.push(GroupError {
                             features: (0..n).filter(|j| mask >> j & 1 == 1).collect(),
                             error: group_error(mask)?,
