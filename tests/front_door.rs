@@ -22,6 +22,16 @@ fn ok(out: Output) -> Output {
     out
 }
 
+/// A 2 mm sample mesh (100 poses).
+const SAMPLE_MESH: &str = r#"kind = "mesh", spacing = 2.0"#;
+
+/// `evitrack simulate --out OUT --seed SEED --motion MOTION`, which must succeed.
+fn simulate(out: &str, seed: &str, motion: &str) {
+    ok(evitrack(&[
+        "simulate", "--out", out, "--seed", seed, "--motion", motion,
+    ]));
+}
+
 /// The rows of `method` in a frames CSV, without the method and the motion label (a run names
 /// the motion `test0:circle`, `track` after the dataset folder).
 fn rows_without_label(path: &Path, method: &str) -> Vec<Vec<String>> {
@@ -227,22 +237,12 @@ set = { "sample.keep_every" = 2, "sample.adaptive" = {} }
 fn train_with_a_validation_dataset_learns_threshold_and_feature_errors() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
-    ok(evitrack(&[
-        "simulate",
-        "--out",
-        &path("sample"),
-        "--motion",
-        r#"kind = "mesh", spacing = 2.0"#,
-    ]));
-    ok(evitrack(&[
-        "simulate",
-        "--out",
+    simulate(&path("sample"), "1", SAMPLE_MESH);
+    simulate(
         &path("validation"),
-        "--seed",
         "5",
-        "--motion",
         r#"kind = "random_path", speed = 8, duration = 3, fps = 10"#,
-    ]));
+    );
     let sample = path("sample");
     let train = |out: &str, extra: &[&str]| {
         let out = path(out);
@@ -342,22 +342,12 @@ fn too_many_features_are_refused_before_anything_runs() {
 fn every_method_trains_and_tracks_from_the_command_line() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
-    ok(evitrack(&[
-        "simulate",
-        "--out",
-        &path("sample"),
-        "--motion",
-        r#"kind = "mesh", spacing = 2.0"#,
-    ]));
-    ok(evitrack(&[
-        "simulate",
-        "--out",
+    simulate(&path("sample"), "1", SAMPLE_MESH);
+    simulate(
         &path("test"),
-        "--seed",
         "4",
-        "--motion",
         r#"kind = "circle", radius = 5, speed = 10, duration = 2, fps = 10"#,
-    ]));
+    );
     let mut means = Vec::new();
     for method in ["knn", "gp", "centre"] {
         let model = path(&format!("{method}.json"));

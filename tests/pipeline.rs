@@ -104,6 +104,18 @@ fn paper_table_meets_its_expectations() {
         };
         assert_eq!(f.verdict, expected, "{f:?}");
     }
+    // The README's figures for the method pairs.
+    for (variant, name, readme) in [
+        ("paper-a", "knn − gp", 0.0693),
+        ("paper-e", "knn − gp", 0.1626),
+        ("paper-a", "evidential − knn", 4.2318),
+        ("paper-e", "evidential − knn", 2.0841),
+    ] {
+        let f = (report.findings.iter())
+            .find(|f| f.comparison.name == name && f.comparison.left.scenario == variant)
+            .unwrap();
+        assert!(close(f.difference.mean, readme), "{variant} {name}: {f:?}");
+    }
     for (variant, readme) in [
         ("paper-a", 4.7065),
         ("paper-b", 3.5335),
