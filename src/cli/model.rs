@@ -8,8 +8,8 @@ use clap::Args;
 
 use super::{extract_with_progress, feature_config, output_sink, progress_bar, read_dataset};
 use evitrack::estimator::{
-    self, missing_penalty, DatasetFeatures, EstimatorSettings, Evidential, EvidentialSettings,
-    KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
+    self, missing_penalty, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential,
+    EvidentialSettings, KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
@@ -66,20 +66,23 @@ impl TrackOptions {
             };
         }
         if let Some(text) = &self.threshold {
-            settings.conflict_threshold = match text.as_str() {
-                "inf" => ConflictLevel::Infinite,
-                text => text
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|t| t.is_finite() && *t >= 0.0)
-                    .map(ConflictLevel::Finite)
-                    .with_context(|| {
-                        format!("--threshold `{text}` must be a number ≥ 0 or `inf`")
-                    })?,
-            };
+            settings.conflict_threshold = parse_threshold(text)?;
         }
         Ok(settings)
     }
+}
+
+/// `--threshold`: a number ≥ 0 or `inf`.
+fn parse_threshold(text: &str) -> Result<ConflictLevel> {
+    Ok(match text {
+        "inf" => ConflictLevel::Infinite,
+        text => text
+            .parse::<f64>()
+            .ok()
+            .filter(|t| t.is_finite() && *t >= 0.0)
+            .map(ConflictLevel::Finite)
+            .with_context(|| format!("--threshold `{text}` must be a number ≥ 0 or `inf`"))?,
+    })
 }
 
 /// Arguments of `train`.
@@ -118,7 +121,8 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// The estimation method. --states, --tune-bic, --keep-threshold and the tracker options
-    /// are the evidential tracker's; --k and --weights are k-NN's.
+    /// are the evidential tracker's (the continuous one takes --threshold, --selection and
+    /// --threshold-quantile); --k and --weights are k-NN's.
     #[arg(long, value_enum, default_value = "evidential")]
     method: MethodArg,
     /// k-NN: the number of neighbours.
@@ -141,6 +145,8 @@ enum MethodArg {
     Gp,
     /// The workspace centre: the error of knowing nothing.
     Centre,
+    /// The continuous evidential tracker (feature maps learned as smooth functions of the pose).
+    Continuous,
 }
 
 impl MethodArg {
@@ -150,6 +156,7 @@ impl MethodArg {
             MethodArg::Knn => Method::Knn,
             MethodArg::Gp => Method::Gp,
             MethodArg::Centre => Method::Centre,
+            MethodArg::Continuous => Method::Continuous,
         }
     }
 }
@@ -272,18 +279,38 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         provenance: Provenance::new(None, args.seed),
     };
     if args.method != MethodArg::Evidential {
+        let continuous = args.method == MethodArg::Continuous;
+        let track = &args.track;
         if args.states.is_some()
             || args.tune_bic.is_some()
             || args.keep_threshold
-            || args.threshold_quantile.is_some()
-            || args.track.given()
+            || track.constructor.is_some()
+            || track.estimator.is_some()
         {
             bail!(
-                "--states, --tune-bic, --keep-threshold, --threshold-quantile and the tracker options apply to \
+                "--states, --tune-bic, --keep-threshold, --constructor and --estimator apply to \
                  --method evidential only"
             );
         }
+        if !continuous && (args.threshold_quantile.is_some() || track.given()) {
+            bail!(
+                "--threshold-quantile and the tracker options apply to --method evidential and \
+                 continuous only"
+            );
+        }
+        let mut continuous_settings = ContinuousSettings::default();
+        if let Some(text) = &track.selection {
+            continuous_settings.selection = parse_selection(text)?;
+        }
+        if let Some(text) = &track.threshold {
+            continuous_settings.conflict_threshold = parse_threshold(text)?;
+        }
+        if let Some(q) = args.threshold_quantile {
+            continuous_settings.learn_threshold = true;
+            continuous_settings.threshold_rule = ThresholdRule::Quantile(q);
+        }
         let settings = EstimatorSettings {
+            continuous: continuous_settings,
             knn: KnnSettings {
                 k: args.k,
                 weights: match args.weights {

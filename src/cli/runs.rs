@@ -178,11 +178,46 @@ fn fault_table(summaries: &[&RunSummary]) -> Option<Table> {
     any.then_some(table)
 }
 
-/// Prints the error table, and the fault table when runs had faults.
+/// For methods with plausibility regions: on the clean frames, the share of regions holding the
+/// true pose and their size. `None` when no method gave regions.
+fn region_table(summaries: &[&RunSummary]) -> Option<Table> {
+    let mut table = Table::new([
+        "scenario",
+        "method",
+        "clean frames",
+        "no region",
+        "coverage",
+        "mean area (mm²)",
+        "median area (mm²)",
+    ]);
+    let mut any = false;
+    for s in summaries {
+        for m in &s.methods {
+            let Some(r) = &m.region else { continue };
+            any = true;
+            table.push([
+                s.scenario.clone(),
+                m.method.clone(),
+                r.frames.to_string(),
+                r.frames_without_region.to_string(),
+                format!("{:.3}", r.coverage),
+                format!("{:.5}", r.mean_area),
+                format!("{:.5}", r.median_area),
+            ]);
+        }
+    }
+    any.then_some(table)
+}
+
+/// Prints the error table, the fault table when runs had faults, and the region table when a
+/// method gave plausibility regions.
 fn print_tables(summaries: &[&RunSummary]) {
     println!("{}", error_table(summaries));
     if let Some(faults) = fault_table(summaries) {
         println!("{faults}");
+    }
+    if let Some(regions) = region_table(summaries) {
+        println!("{regions}");
     }
 }
 
@@ -437,6 +472,8 @@ fn write_sweep_report(
         "detection_auc",
         "left_out_precision",
         "left_out_recall",
+        "region_coverage",
+        "region_mean_area",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     for s in all_runs {
@@ -479,6 +516,8 @@ fn write_sweep_report(
                 num(f.and_then(|f| f.detection_auc)),
                 num(f.and_then(|f| f.left_out_precision)),
                 num(f.and_then(|f| f.left_out_recall)),
+                num(m.region.as_ref().map(|r| r.coverage)),
+                num(m.region.as_ref().map(|r| r.mean_area)),
             ])?;
         }
     }

@@ -158,6 +158,7 @@ impl PoseEstimator for Centre {
             uncertainty_radius: None,
             group: None,
             conflict_level: None,
+            region: None,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()

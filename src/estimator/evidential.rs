@@ -247,6 +247,7 @@ impl PoseEstimator for Evidential {
             group: Some(frame.group),
             conflict_level: frame.conflict_level,
             detection_score: frame.full_conflict_level,
+            region: None,
             flags: EstimateFlags {
                 missing: frame.flags.missing().collect(),
                 excluded: frame.flags.excluded,

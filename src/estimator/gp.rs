@@ -152,7 +152,7 @@ struct GpFile {
     sample_features: Vec<Vec<f64>>,
 }
 
-mod fit;
+pub(super) mod fit;
 
 use fit::{dot, minimise, Objective};
 
@@ -380,6 +380,7 @@ impl PoseEstimator for Gp {
             uncertainty_radius: radius,
             group: None,
             conflict_level: None,
+            region: None,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()

@@ -398,6 +398,7 @@ impl PoseEstimator for Knn {
             uncertainty_radius: radius,
             group: None,
             conflict_level: None,
+            region: None,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()

@@ -8,11 +8,14 @@
 //! model file that [`load`] reads back into an estimator giving the same estimates.
 
 mod centre;
+mod continuous;
 mod evidential;
 mod gp;
 mod knn;
+pub mod synthetic;
 
 pub use centre::{Centre, CentreSettings};
+pub use continuous::{Continuous, ContinuousSettings, SurrogateHyperparameters};
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
@@ -78,11 +81,20 @@ pub enum Method {
     Gp,
     /// The workspace centre, whatever the frame ([`Centre`]): the error of knowing nothing.
     Centre,
+    /// The continuous evidential tracker: feature maps learned as smooth functions of the pose,
+    /// likelihood-based consonant functions, the paper's selection ([`Continuous`]).
+    Continuous,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: [Method; 4] = [Method::Evidential, Method::Knn, Method::Gp, Method::Centre];
+    pub const ALL: [Method; 5] = [
+        Method::Evidential,
+        Method::Continuous,
+        Method::Knn,
+        Method::Gp,
+        Method::Centre,
+    ];
 
     /// The name scenario and model files use.
     pub fn name(self) -> &'static str {
@@ -91,6 +103,7 @@ impl Method {
             Method::Knn => "knn",
             Method::Gp => "gp",
             Method::Centre => "centre",
+            Method::Continuous => "continuous",
         }
     }
 }
@@ -116,8 +129,60 @@ pub struct PoseEstimate {
     /// corrupted (+∞: impossible): the level of conflict of every usable feature for the
     /// evidential tracker, the standardised distance to the nearest sample for k-NN and the GP.
     pub detection_score: Option<f64>,
+    /// The region of poses the method finds plausible at its stated level, for methods that
+    /// give one (the continuous evidential tracker).
+    pub region: Option<PlausibilityRegion>,
     /// What deserves attention in this frame.
     pub flags: EstimateFlags,
+}
+
+/// An elliptic region of poses: those q with (q − centre)ᵀ shape (q − centre) ≤ 1.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PlausibilityRegion {
+    /// The estimate it is centred on (mm).
+    pub centre: [f64; 2],
+    /// Symmetric positive-definite shape matrix (mm⁻²).
+    pub shape: [[f64; 2]; 2],
+    /// The relative plausibility its boundary holds (Pl(q)/Pl(centre)).
+    pub level: f64,
+    /// Its area (mm²).
+    pub area: f64,
+    /// Its longest semi-axis (mm).
+    pub semi_major: f64,
+}
+
+impl PlausibilityRegion {
+    /// The region {q : (q − centre)ᵀ curvature (q − centre) ≤ chi2}, from the curvature of
+    /// ½χ² at its minimum; `None` unless the curvature is positive definite and well conditioned.
+    pub fn from_curvature(
+        centre: [f64; 2],
+        curvature: [[f64; 2]; 2],
+        chi2: f64,
+        level: f64,
+    ) -> Option<Self> {
+        let [[a, b], [_, c]] = curvature;
+        let det = a * c - b * b;
+        let trace = a + c;
+        if !(det.is_finite() && trace.is_finite() && det > 1e-12 * trace * trace && chi2 > 0.0) {
+            return None;
+        }
+        let smallest = 0.5 * (trace - ((a - c) * (a - c) + 4.0 * b * b).sqrt());
+        let scale = 1.0 / chi2;
+        Some(Self {
+            centre,
+            shape: [[a * scale, b * scale], [b * scale, c * scale]],
+            level,
+            area: std::f64::consts::PI * chi2 / det.sqrt(),
+            semi_major: (chi2 / smallest.max(f64::MIN_POSITIVE)).sqrt(),
+        })
+    }
+
+    /// Whether pose `q` lies inside.
+    pub fn covers(&self, q: [f64; 2]) -> bool {
+        let d = [q[0] - self.centre[0], q[1] - self.centre[1]];
+        let s = &self.shape;
+        d[0] * (s[0][0] * d[0] + s[0][1] * d[1]) + d[1] * (s[1][0] * d[0] + s[1][1] * d[1]) <= 1.0
+    }
 }
 
 /// Flags of one frame's estimate (all empty or false on a clean frame).
@@ -199,6 +264,8 @@ pub struct EstimatorSettings {
     pub knn: KnnSettings,
     /// The Gaussian process's.
     pub gp: GpSettings,
+    /// The continuous evidential tracker's.
+    pub continuous: ContinuousSettings,
 }
 
 impl Method {
@@ -216,6 +283,7 @@ impl Method {
             Method::Knn => Box::new(Knn::fit(&settings.knn, data)?),
             Method::Gp => Box::new(Gp::fit(&settings.gp, data)?),
             Method::Centre => Box::new(Centre::fit(&CentreSettings::default(), data)?),
+            Method::Continuous => Box::new(Continuous::fit(&settings.continuous, data)?),
         })
     }
 }
@@ -319,6 +387,16 @@ pub fn missing_penalty(dataset: &Dataset) -> f64 {
 
 /// The diagonal of the poses' bounding box (0 without poses).
 fn bounding_diagonal(poses: &[[f64; 2]]) -> f64 {
+    let (lo, hi) = bounding_box(poses);
+    if poses.is_empty() {
+        0.0
+    } else {
+        (hi[0] - lo[0]).hypot(hi[1] - lo[1])
+    }
+}
+
+/// The lowest and highest x and y of the poses (±∞ inverted without poses).
+pub(crate) fn bounding_box(poses: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for p in poses {
         for k in 0..2 {
@@ -326,11 +404,7 @@ fn bounding_diagonal(poses: &[[f64; 2]]) -> f64 {
             hi[k] = hi[k].max(p[k]);
         }
     }
-    if poses.is_empty() {
-        0.0
-    } else {
-        (hi[0] - lo[0]).hypot(hi[1] - lo[1])
-    }
+    (lo, hi)
 }
 
 /// Reads a model file written by any estimator's [`PoseEstimator::to_json`] and returns the
@@ -352,13 +426,15 @@ pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         Some(Knn::METHOD) => Box::new(Knn::load(path)?),
         Some(Gp::METHOD) => Box::new(Gp::load(path)?),
         Some(Centre::METHOD) => Box::new(Centre::load(path)?),
+        Some(Continuous::METHOD) => Box::new(Continuous::load(path)?),
         Some(crate::model::METHOD) | None => Box::new(Evidential::load(path)?),
         Some(other) => {
             return Err(ModelError::File {
                 path: path.to_path_buf(),
                 source: Box::new(ModelError::Corrupted(format!(
-                "unknown method `{other}`: this build reads `{}`, `{}`, `{}` and `{}` model files",
+                "unknown method `{other}`: this build reads `{}`, `{}`, `{}`, `{}` and `{}` model files",
                 crate::model::METHOD,
+                Continuous::METHOD,
                 Knn::METHOD,
                 Gp::METHOD,
                 Centre::METHOD

@@ -162,6 +162,7 @@ pub fn run(
         },
         knn: s.knn.clone(),
         gp: s.gp.clone(),
+        continuous: s.continuous.clone(),
     };
     let training = TrainingSet {
         feature_names: &names,

@@ -35,6 +35,12 @@ pub struct FrameRecord {
     pub uncertainty_radius: Option<f64>,
     /// How unusual the frame looked to the method (see [`PoseEstimate::detection_score`]).
     pub detection_score: Option<f64>,
+    /// Area of the method's plausibility region (mm²), for methods that give one.
+    #[serde(default)]
+    pub region_area: Option<f64>,
+    /// Whether that region holds the true pose (`None` without a region or ground truth).
+    #[serde(default)]
+    pub region_covers: Option<bool>,
     /// Missing features, fallback, no estimate: empty when the frame is clean.
     pub flags: String,
     /// The flags behind `flags`, by feature index.
@@ -67,6 +73,8 @@ impl FrameRecord {
             conflict_level: estimate.conflict_level,
             uncertainty_radius: estimate.uncertainty_radius,
             detection_score: estimate.detection_score,
+            region_area: estimate.region.map(|r| r.area),
+            region_covers: estimate.region.zip(truth).map(|(r, t)| r.covers(t)),
             flags: estimate.flag_words(names),
             flag_set: estimate.flags.clone(),
             faults: None,
@@ -114,6 +122,8 @@ pub fn write_frames_csv<W: std::io::Write>(
         "detection_score",
         "faults",
         "changed_features",
+        "region_area",
+        "region_covers",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     let joined = |list: &[usize]| {
@@ -146,6 +156,8 @@ pub fn write_frames_csv<W: std::io::Write>(
             num(r.detection_score),
             faults,
             changed,
+            num(r.region_area),
+            r.region_covers.map(|c| c.to_string()).unwrap_or_default(),
         ])?;
     }
     csv.flush()?;
@@ -188,6 +200,58 @@ pub struct MethodSummary {
     pub track_seconds: f64,
     /// Clean against corrupted frames, in a run with faults.
     pub faults: Option<FaultSummary>,
+    /// How the plausibility regions fared on the clean frames, for methods that give them.
+    #[serde(default)]
+    pub region: Option<RegionSummary>,
+}
+
+/// Coverage and size of a method's plausibility regions over the clean frames with a truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RegionSummary {
+    /// Clean frames whose estimate came with a region.
+    pub frames: usize,
+    /// Clean frames with an estimate but no bounded region.
+    pub frames_without_region: usize,
+    /// Share of those regions that hold the true pose.
+    pub coverage: f64,
+    /// Mean area of the regions (mm²).
+    pub mean_area: f64,
+    /// Median area (mm²).
+    pub median_area: f64,
+}
+
+impl RegionSummary {
+    /// The summary of one method's `records`; `None` when none has a region.
+    pub fn of(records: &[FrameRecord]) -> Option<Self> {
+        let clean: Vec<&FrameRecord> = (records.iter())
+            .filter(|r| !r.corrupted() && r.estimate.is_some() && r.truth.is_some())
+            .collect();
+        let with: Vec<(&FrameRecord, f64)> = (clean.iter())
+            .filter_map(|r| r.region_area.map(|a| (*r, a)))
+            .collect();
+        if with.is_empty() {
+            return None;
+        }
+        let covered = with
+            .iter()
+            .filter(|(r, _)| r.region_covers == Some(true))
+            .count();
+        let mut areas: Vec<f64> = with.iter().map(|(_, a)| *a).collect();
+        areas.sort_by(f64::total_cmp);
+        let n = areas.len();
+        let median = if n % 2 == 1 {
+            areas[n / 2]
+        } else {
+            0.5 * (areas[n / 2 - 1] + areas[n / 2])
+        };
+        Some(Self {
+            frames: n,
+            frames_without_region: clean.len() - n,
+            coverage: covered as f64 / n as f64,
+            mean_area: areas.iter().sum::<f64>() / n as f64,
+            median_area: median,
+        })
+    }
 }
 
 impl MethodSummary {
@@ -220,6 +284,7 @@ impl MethodSummary {
             fit_seconds,
             track_seconds,
             faults: FaultSummary::of(records),
+            region: RegionSummary::of(records),
         }
     }
 }
@@ -473,6 +538,7 @@ pub(super) mod tests {
             fit_seconds: 0.0,
             track_seconds: 0.0,
             faults: None,
+            region: None,
         }
     }
 

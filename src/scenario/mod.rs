@@ -12,7 +12,9 @@ use std::collections::BTreeMap;
 use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
-use crate::estimator::{GpSettings, KnnSettings, Method, MAX_FEATURES_GROUP_ERRORS};
+use crate::estimator::{
+    ContinuousSettings, GpSettings, KnnSettings, Method, MAX_FEATURES_GROUP_ERRORS,
+};
 use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
@@ -176,6 +178,8 @@ pub struct Scenario {
     pub knn: KnnSettings,
     /// The Gaussian process's settings (`[gp]`).
     pub gp: GpSettings,
+    /// The continuous evidential tracker's settings (`[continuous]`).
+    pub continuous: ContinuousSettings,
     /// Regression expectations.
     pub expect: Expectations,
     /// The paper's figure for this setup, printed beside ours.
@@ -208,6 +212,7 @@ impl Default for Scenario {
             estimators: Method::ALL.to_vec(),
             knn: KnnSettings::default(),
             gp: GpSettings::default(),
+            continuous: ContinuousSettings::default(),
             expect: Expectations::default(),
             paper_error: None,
             sweep: Sweep::default(),
@@ -274,6 +279,26 @@ impl Scenario {
         self.model
             .check()
             .map_err(|e| invalid(format!("[model]: {e}")))?;
+        if self.estimators.contains(&Method::Continuous) {
+            self.continuous
+                .check()
+                .map_err(|e| invalid(format!("[continuous]: {e}")))?;
+            if features.len() > MAX_FEATURES {
+                return Err(invalid(format!(
+                    "[features]: {} features, but the continuous tracker takes at most \
+                     {MAX_FEATURES}: use fewer size-function lines or drop the barycentre",
+                    features.len()
+                )));
+            }
+            let min_size = self.continuous.selection.min_size();
+            if min_size > features.len() {
+                return Err(invalid(format!(
+                    "[continuous]: selection `min_size = {min_size}` is more than the {} \
+                     features: no group could ever be chosen",
+                    features.len()
+                )));
+            }
+        }
         // What only the evidential tracker limits (its groups are bit masks, its states per
         // feature are listed per feature).
         if self.estimators.contains(&Method::Evidential) {

@@ -4,6 +4,7 @@
 
 use std::collections::HashMap;
 
+use super::select::memoised_level;
 use super::tracker::{members, Tracker, Usable};
 use crate::evidence::{conflict_level_all, Constructor, MassFunction, Subset};
 
@@ -50,9 +51,7 @@ impl Tracker {
     }
 
     /// Level of conflict of a group on the cells (0 for one feature, +∞ when not combinable),
-    /// memoised. With a finite `bound`, a group whose prefix (the group without its highest
-    /// feature) is already known to exceed the bound is not combined: K only grows as features
-    /// are added (Theorem 4.3), so it cannot be below the bound; it is recorded as +∞.
+    /// memoised, with the prefix pruning of [`memoised_level`] under a finite `bound`.
     pub(super) fn level(
         &self,
         group: u32,
@@ -60,21 +59,13 @@ impl Tracker {
         memo: &mut HashMap<u32, f64>,
         bound: f64,
     ) -> f64 {
-        if group.count_ones() <= 1 {
-            return 0.0;
-        }
-        if let Some(&k) = memo.get(&group) {
-            return k;
-        }
-        let parent = group & !(1u32 << (31 - group.leading_zeros()));
-        let k = match memo.get(&parent) {
-            Some(&kp) if kp.is_nan() || kp > bound + TIE => f64::INFINITY,
-            _ => self
-                .fast_level(group, usable)
-                .unwrap_or_else(|| self.general_level(group, usable)),
-        };
-        memo.insert(group, k);
-        k
+        memoised_level(memo, group, bound, || self.raw_level(group, usable))
+    }
+
+    /// Level of conflict of a group of at least two features on the cells, not memoised.
+    pub(super) fn raw_level(&self, group: u32, usable: &[Option<Usable>]) -> f64 {
+        self.fast_level(group, usable)
+            .unwrap_or_else(|| self.general_level(group, usable))
     }
 
     /// The group's measurement functions extended onto the cells (only the general path and the

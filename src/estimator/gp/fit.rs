@@ -3,19 +3,29 @@
 
 use super::*;
 
-/// Minus the log marginal likelihood per fit sample, summed over the two outputs, as a function
-/// of θ = (log ℓ_1 … log ℓ_D, log σf, log(σn/σf)) (a ratio, so that every bound is a box).
-pub(super) struct Objective {
+/// Minus the log marginal likelihood per fit sample, summed over the outputs (one kernel shared
+/// by all), as a function of θ = (log ℓ_1 … log ℓ_D, log σf, log(σn/σf)) (a ratio, so that every
+/// bound is a box).
+pub(in crate::estimator) struct Objective {
     m: usize,
     dim: usize,
+    /// Outputs per sample.
+    outputs: usize,
     /// (z_i,d − z_j,d)² for each pair i < j (j-major), then each d.
     diffs: Vec<f64>,
-    /// Scaled outputs of the fit samples (m × 2).
+    /// Scaled outputs of the fit samples (m × outputs).
     y: DMatrix<f64>,
 }
 
 impl Objective {
-    pub(super) fn new(inputs: &[f64], outputs: &[f64], dim: usize, subset: &[usize]) -> Self {
+    /// The objective on the samples `subset` of row-major `inputs` (`dim` per sample) and
+    /// row-major `outputs` (`outputs.len() / samples` per sample).
+    pub(in crate::estimator) fn new(
+        inputs: &[f64],
+        outputs: &[f64],
+        dim: usize,
+        subset: &[usize],
+    ) -> Self {
         let m = subset.len();
         let mut diffs = Vec::with_capacity(m * m.saturating_sub(1) / 2 * dim);
         for j in 0..m {
@@ -24,13 +34,20 @@ impl Objective {
                 diffs.extend((0..dim).map(|d| (inputs[a + d] - inputs[b + d]).powi(2)));
             }
         }
-        let y = DMatrix::from_fn(m, 2, |i, o| outputs[subset[i] * 2 + o]);
-        Self { m, dim, diffs, y }
+        let k = outputs.len() / (inputs.len() / dim.max(1)).max(1);
+        let y = DMatrix::from_fn(m, k, |i, o| outputs[subset[i] * k + o]);
+        Self {
+            m,
+            dim,
+            outputs: k,
+            diffs,
+            y,
+        }
     }
 
     /// Value and gradient at θ; `None` where the kernel matrix is not positive definite.
-    pub(super) fn eval(&self, theta: &[f64]) -> Option<(f64, Vec<f64>)> {
-        let (m, dim) = (self.m, self.dim);
+    pub(in crate::estimator) fn eval(&self, theta: &[f64]) -> Option<(f64, Vec<f64>)> {
+        let (m, dim, outputs) = (self.m, self.dim, self.outputs as f64);
         let inv_l2: Vec<f64> = theta[..dim].iter().map(|t| (-2.0 * t).exp()).collect();
         let sf2 = (2.0 * theta[dim]).exp();
         let sn2 = (2.0 * (theta[dim] + theta[dim + 1])).exp();
@@ -52,12 +69,18 @@ impl Objective {
         let alpha = chol.solve(&self.y);
         let log_det: f64 = 2.0 * (0..m).map(|i| chol.l_dirty()[(i, i)].ln()).sum::<f64>();
         let fit: f64 = self.y.iter().zip(alpha.iter()).map(|(a, b)| a * b).sum();
-        let lml = -0.5 * fit - log_det - m as f64 * (2.0 * std::f64::consts::PI).ln();
-        // W = Σ_o α_o α_oᵀ − 2K⁻¹; ∂L/∂θ = ½ tr(W ∂K/∂θ).
+        // Grouped so that two outputs give the same bits as the two-output formula.
+        let lml = -0.5 * fit
+            - 0.5 * outputs * log_det
+            - 0.5 * outputs * m as f64 * (2.0 * std::f64::consts::PI).ln();
+        // W = Σ_o α_o α_oᵀ − (outputs)·K⁻¹; ∂L/∂θ = ½ tr(W ∂K/∂θ).
         let inverse = upper_inverse(chol.l_dirty());
         // Only i ≤ j is read: the upper triangle of K⁻¹, column-major.
         let w = |i: usize, j: usize| {
-            alpha[(i, 0)] * alpha[(j, 0)] + alpha[(i, 1)] * alpha[(j, 1)] - 2.0 * inverse[i + j * m]
+            let aa: f64 = (0..self.outputs)
+                .map(|o| alpha[(i, o)] * alpha[(j, o)])
+                .sum();
+            aa - outputs * inverse[i + j * m]
         };
         let mut grad = vec![0.0; dim + 2];
         let mut off_diagonal = 0.0;
@@ -84,7 +107,7 @@ impl Objective {
 /// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
 /// time so that each loaded value serves four sums (several times faster than solving against
 /// the identity).
-pub(super) fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
+pub(in crate::estimator) fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
     let n = l.nrows();
     let l = l.as_slice();
     let width = n.div_ceil(4) * 4;
@@ -159,7 +182,7 @@ pub(super) fn project(theta: &mut [f64], lower: &[f64], upper: &[f64]) {
 /// are held, the quasi-Newton direction is taken on the others (the memory restarts when that
 /// set changes), and a backtracking Armijo search runs along the projected path. Deterministic.
 /// Returns the final point and value, or `None` when the start is infeasible.
-pub(super) fn minimise(
+pub(in crate::estimator) fn minimise(
     objective: &Objective,
     start: Vec<f64>,
     iterations: usize,

@@ -1,0 +1,253 @@
+//! One frame of the continuous evidential tracker: each usable feature's likelihood-based
+//! consonant function on the poses (contour pl_i(q) = exp(−½ z_i(q)²), z_i = (y_i − f_i(q))/σ_i),
+//! group levels of conflict from the height of the contour product,
+//! K_G = −log sup_q Π_{i∈G} pl_i(q) = ½ min_q Σ_{i∈G} z_i(q)², found by Levenberg–Marquardt from
+//! the best sample pose, and the paper's selection policies on top ([`select_group`]).
+
+use std::collections::HashMap;
+
+use super::Continuous;
+use crate::track::{select_group, GroupLevels, Selection};
+
+/// Most Levenberg–Marquardt iterations per group.
+const MAX_ITERATIONS: usize = 40;
+/// A step shorter than this (mm) ends the iteration.
+const STEP_TOLERANCE: f64 = 1e-7;
+
+/// The minimum of one group's χ² = Σ z_i² and what the plausibility region needs there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct GroupFit {
+    /// The pose of highest combined plausibility (mm).
+    pub pose: [f64; 2],
+    /// Σ z_i² there (twice the level of conflict).
+    pub chi2: f64,
+    /// JᵀJ there (J: ∂z_i/∂q), the curvature of ½χ² in mm⁻².
+    pub curvature: [[f64; 2]; 2],
+}
+
+/// One frame's measurements against the model, with every group fit memoised.
+pub(super) struct Frame<'a> {
+    model: &'a Continuous,
+    /// Each feature's value; `None` when it is not usable.
+    values: Vec<Option<f64>>,
+    pub(super) usable_mask: u32,
+    fits: HashMap<u32, GroupFit>,
+    /// z_i² at every sample pose for the usable features (sample-major, one per feature).
+    sample_z2: Vec<f64>,
+}
+
+impl<'a> Frame<'a> {
+    /// The frame of `values` (one per feature, non-finite already `None`).
+    pub(super) fn new(model: &'a Continuous, values: Vec<Option<f64>>) -> Self {
+        let d = values.len();
+        let usable_mask = (0..d)
+            .filter(|&i| values[i].is_some())
+            .fold(0u32, |m, i| m | 1 << i);
+        let inv_sigma: Vec<f64> = model.file.residual_scales.iter().map(|s| 1.0 / s).collect();
+        let mut sample_z2 = vec![0.0; model.sample_values.len()];
+        for (z2, f) in sample_z2
+            .chunks_exact_mut(d)
+            .zip(model.sample_values.chunks_exact(d))
+        {
+            for i in 0..d {
+                if let Some(y) = values[i] {
+                    let z = (y - f[i]) * inv_sigma[i];
+                    z2[i] = z * z;
+                }
+            }
+        }
+        Self {
+            model,
+            values,
+            usable_mask,
+            fits: HashMap::new(),
+            sample_z2,
+        }
+    }
+
+    /// Σ_{i∈group} z_i² at pose `q`, with the Jacobian rows of the z_i when asked.
+    fn chi2_at(
+        &self,
+        group: u32,
+        q: [f64; 2],
+        rows: Option<&mut Vec<[f64; 2]>>,
+    ) -> (f64, Vec<f64>) {
+        let d = self.values.len();
+        let mut f = vec![0.0; d];
+        let mut jac = vec![[0.0; 2]; d];
+        let want_jacobian = rows.is_some();
+        self.model
+            .surrogate
+            .eval(q, &mut f, want_jacobian.then_some(&mut jac[..]));
+        let mut chi2 = 0.0;
+        let mut residuals = Vec::with_capacity(group.count_ones() as usize);
+        let mut jac_rows = Vec::new();
+        for i in members(group) {
+            let Some(y) = self.values[i] else { continue };
+            let s = self.model.file.residual_scales[i];
+            let z = (y - f[i]) / s;
+            chi2 += z * z;
+            residuals.push(z);
+            if want_jacobian {
+                jac_rows.push([-jac[i][0] / s, -jac[i][1] / s]);
+            }
+        }
+        if let Some(rows) = rows {
+            *rows = jac_rows;
+        }
+        (chi2, residuals)
+    }
+
+    /// Σ_{i∈group} z_i² at pose `q`.
+    pub(super) fn chi2_of(&self, group: u32, q: [f64; 2]) -> f64 {
+        self.chi2_at(group, q, None).0
+    }
+
+    /// The sample pose with the lowest χ² of `group`, and that χ².
+    fn best_sample(&self, group: u32) -> ([f64; 2], f64) {
+        let d = self.values.len();
+        let mut best = (0, f64::INFINITY);
+        for (k, z2) in self.sample_z2.chunks_exact(d).enumerate() {
+            let chi2: f64 = members(group).map(|i| z2[i]).sum();
+            if chi2 < best.1 {
+                best = (k, chi2);
+            }
+        }
+        (self.model.sample_poses()[best.0], best.1)
+    }
+
+    /// The memoised fit of `group` (usable features only, at least one).
+    pub(super) fn fit(&mut self, group: u32) -> GroupFit {
+        if let Some(fit) = self.fits.get(&group) {
+            return *fit;
+        }
+        let (mut start, start_chi2) = self.best_sample(group);
+        // The optimum of the whole frame is often the better start for a large group.
+        if let Some(all) = self.fits.get(&self.usable_mask).copied() {
+            if group != self.usable_mask {
+                let (chi2, _) = self.chi2_at(group, all.pose, None);
+                if chi2 < start_chi2 {
+                    start = all.pose;
+                }
+            }
+        }
+        let fit = self.levenberg_marquardt(group, start);
+        self.fits.insert(group, fit);
+        fit
+    }
+
+    /// Minimises Σ z_i² from `start`, kept inside the sample poses' bounding box.
+    fn levenberg_marquardt(&self, group: u32, start: [f64; 2]) -> GroupFit {
+        let (lo, hi) = self.model.bounds;
+        let clamp = |q: [f64; 2]| [q[0].clamp(lo[0], hi[0]), q[1].clamp(lo[1], hi[1])];
+        let mut q = clamp(start);
+        let mut rows = Vec::new();
+        let (mut chi2, mut r) = self.chi2_at(group, q, Some(&mut rows));
+        let mut lambda = 1e-3;
+        for _ in 0..MAX_ITERATIONS {
+            let (a, g) = normal_equations(&rows, &r);
+            let damped = [
+                [a[0][0] * (1.0 + lambda) + 1e-300, a[0][1]],
+                [a[1][0], a[1][1] * (1.0 + lambda) + 1e-300],
+            ];
+            let Some(step) = solve2(damped, [-g[0], -g[1]]) else {
+                break;
+            };
+            let trial = clamp([q[0] + step[0], q[1] + step[1]]);
+            let moved = (trial[0] - q[0]).hypot(trial[1] - q[1]);
+            let mut trial_rows = Vec::new();
+            let (trial_chi2, trial_r) = self.chi2_at(group, trial, Some(&mut trial_rows));
+            if trial_chi2 < chi2 {
+                (q, chi2, r, rows) = (trial, trial_chi2, trial_r, trial_rows);
+                lambda = (lambda * 0.1).max(1e-12);
+                if moved < STEP_TOLERANCE {
+                    break;
+                }
+            } else {
+                lambda *= 10.0;
+                if lambda > 1e12 || moved < STEP_TOLERANCE {
+                    break;
+                }
+            }
+        }
+        let (curvature, _) = normal_equations(&rows, &r);
+        GroupFit {
+            pose: q,
+            chi2,
+            curvature,
+        }
+    }
+
+    /// A feature's level alone: ½ z² of its distance from the range of its map over the sample
+    /// poses (0 when some sample pose explains the value), a lower bound of every group's level
+    /// it takes part in.
+    fn own_level(&self, i: usize) -> f64 {
+        let Some(y) = self.values[i] else {
+            return f64::INFINITY;
+        };
+        let (lo, hi) = self.model.ranges[i];
+        let gap = (lo - y).max(y - hi).max(0.0) / self.model.file.residual_scales[i];
+        0.5 * gap * gap
+    }
+
+    /// The paper's selection on this frame.
+    pub(super) fn select(&mut self) -> Selection {
+        let (policy, threshold) = (self.model.file.settings.selection, self.model.threshold());
+        let usable = self.usable_mask;
+        let features = self.values.len();
+        select_group(self, features, usable, policy, threshold)
+    }
+}
+
+impl GroupLevels for Frame<'_> {
+    /// max(K_i, K_j): a necessary condition only (two level curves in a 2-D pose space usually
+    /// cross, so pairs rarely conflict; the group levels decide).
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        self.own_level(i).max(self.own_level(j))
+    }
+
+    fn group_level(&mut self, group: u32) -> f64 {
+        0.5 * self.fit(group).chi2
+    }
+
+    fn fallback_feature(&self) -> Option<usize> {
+        members(self.usable_mask).min_by(|&a, &b| {
+            self.own_level(a)
+                .total_cmp(&self.own_level(b))
+                .then(a.cmp(&b))
+        })
+    }
+}
+
+/// JᵀJ and Jᵀr of residuals `r` with Jacobian rows `rows`.
+fn normal_equations(rows: &[[f64; 2]], r: &[f64]) -> ([[f64; 2]; 2], [f64; 2]) {
+    let mut a = [[0.0; 2]; 2];
+    let mut g = [0.0; 2];
+    for (j, &z) in rows.iter().zip(r) {
+        a[0][0] += j[0] * j[0];
+        a[0][1] += j[0] * j[1];
+        a[1][1] += j[1] * j[1];
+        g[0] += j[0] * z;
+        g[1] += j[1] * z;
+    }
+    a[1][0] = a[0][1];
+    (a, g)
+}
+
+/// Solves a 2 × 2 system; `None` when singular.
+pub(super) fn solve2(a: [[f64; 2]; 2], b: [f64; 2]) -> Option<[f64; 2]> {
+    let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
+    if !(det.is_finite() && det.abs() > 0.0) {
+        return None;
+    }
+    let x = [
+        (b[0] * a[1][1] - b[1] * a[0][1]) / det,
+        (a[0][0] * b[1] - a[1][0] * b[0]) / det,
+    ];
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// Feature indices of a group mask, ascending.
+pub(super) fn members(mask: u32) -> impl Iterator<Item = usize> {
+    (0..32).filter(move |i| mask >> i & 1 == 1)
+}

@@ -1,0 +1,513 @@
+//! The feature maps learned as smooth functions of the pose: one Gaussian process per feature
+//! (squared-exponential kernel with a length scale per pose axis, σf and σn, in standardised
+//! units), hyperparameters by that feature's log marginal likelihood. Each feature has its own
+//! noise and smoothness: the barycentre is a hundred times less noisy, relative to its range,
+//! than a size function, and a shared kernel over-smooths it.
+
+use nalgebra::{Cholesky, DMatrix};
+use serde::{Deserialize, Serialize};
+
+use super::super::bounding_box;
+use super::super::gp::fit::{minimise, upper_inverse, Objective};
+use super::super::knn::Standardisation;
+
+/// Jitter tried, relative to σf², when the factorisation fails.
+const JITTERS: [f64; 7] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4];
+
+/// One feature's fitted kernel hyperparameters, in standardised units (pose coordinates and
+/// the feature scaled to unit standard deviation on the samples).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurrogateHyperparameters {
+    /// Length scale of x and of y.
+    pub length_scales: [f64; 2],
+    /// Signal standard deviation σf.
+    pub signal_std: f64,
+    /// Noise standard deviation σn.
+    pub noise_std: f64,
+    /// The log marginal likelihood reached on the fit samples.
+    pub log_marginal_likelihood: f64,
+}
+
+/// One feature's map, ready to evaluate.
+#[derive(Debug, Clone)]
+struct FeatureKernel {
+    /// Standardised sample poses divided by the length scales.
+    inputs: Vec<[f64; 2]>,
+    /// K⁻¹y per sample (standardised units).
+    alpha: Vec<f64>,
+    signal_var: f64,
+    /// 1 / length scale per axis.
+    inverse_length: [f64; 2],
+    /// Diagonal of K⁻¹ (for leave-one-out residuals), when asked for: n³/3 more work.
+    inverse_diagonal: Option<Vec<f64>>,
+}
+
+/// The learned feature maps f_i(q), ready to evaluate: each Gaussian process tabulated on a
+/// regular grid over the sample poses' bounding box (value, both slopes and the mixed
+/// derivative at every node, exact), and evaluated between nodes by bicubic Hermite
+/// interpolation, which reproduces the process to O(h⁴): far below the features' noise for the
+/// default 0.25 mm against length scales of millimetres, at a few hundred flops per pose
+/// instead of one exponential per sample and feature.
+#[derive(Debug, Clone)]
+pub(super) struct Surrogate {
+    // Read only by the tests' comparison with the process itself.
+    #[cfg_attr(not(test), allow(dead_code))]
+    pose: Standardisation,
+    features: Standardisation,
+    kernels: Vec<FeatureKernel>,
+    grid: Grid,
+}
+
+/// The tabulated maps: node (c, r) at origin + (c·step_x, r·step_y).
+#[derive(Debug, Clone)]
+struct Grid {
+    origin: [f64; 2],
+    step: [f64; 2],
+    nodes: [usize; 2],
+    /// Per node, per feature: f, ∂f/∂x, ∂f/∂y, ∂²f/∂x∂y (raw units, mm), node-major.
+    table: Vec<[f64; 4]>,
+}
+
+/// Most grid nodes along one axis.
+pub(super) const MAX_GRID_NODES: usize = 1000;
+
+/// Fits each feature's hyperparameters on at most `max_fit` evenly spaced samples: L-BFGS from
+/// two starts (length scale 1 and ¼ in standardised units), the better one wins; the features
+/// in parallel on two threads. `None` for a feature whose every start has a singular kernel.
+pub(super) fn fit_hyperparameters(
+    pose: &Standardisation,
+    features: &Standardisation,
+    poses: &[[f64; 2]],
+    rows: &[Vec<f64>],
+    max_fit: usize,
+    iterations: usize,
+) -> Vec<Option<SurrogateHyperparameters>> {
+    let inputs = pose.apply_rows(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>());
+    let outputs = features.apply_rows(rows);
+    let dim = features.means.len();
+    let (n, m) = (poses.len(), poses.len().min(max_fit));
+    let subset: Vec<usize> = (0..m).map(|i| i * n / m).collect();
+    let fit_one = |i: usize| {
+        let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
+        let objective = Objective::new(&inputs, &column, 2, &subset);
+        let mut best: Option<(Vec<f64>, f64)> = None;
+        for length in [1.0f64, 0.25] {
+            let start = vec![length.ln(), length.ln(), 0.0, (1e-2f64).ln()];
+            if let Some(found) = minimise(&objective, start, iterations) {
+                if best.as_ref().is_none_or(|b| found.1 < b.1) {
+                    best = Some(found);
+                }
+            }
+        }
+        best.map(|(theta, value)| SurrogateHyperparameters {
+            length_scales: [theta[0].exp(), theta[1].exp()],
+            signal_std: theta[2].exp(),
+            noise_std: (theta[2] + theta[3]).exp(),
+            log_marginal_likelihood: -value * m as f64,
+        })
+    };
+    // Two threads, each taking every other feature; the results do not depend on the split.
+    let mut found: Vec<Option<SurrogateHyperparameters>> = vec![None; dim];
+    std::thread::scope(|scope| {
+        let fit_one = &fit_one;
+        let handles: Vec<_> = (0..2)
+            .map(|t| {
+                scope.spawn(move || {
+                    (t..dim)
+                        .step_by(2)
+                        .map(|i| (i, fit_one(i)))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for handle in handles {
+            for (i, h) in handle.join().unwrap_or_default() {
+                found[i] = h;
+            }
+        }
+    });
+    found
+}
+
+impl Surrogate {
+    /// Factors each feature's kernel matrix on every sample and tabulates the maps on a grid of
+    /// about `spacing` mm (the same operations whether fitted or loaded); with `leave_one_out`,
+    /// also what [`Surrogate::leave_one_out`] needs.
+    pub(super) fn new(
+        pose: Standardisation,
+        features: Standardisation,
+        hyper: &[SurrogateHyperparameters],
+        poses: &[[f64; 2]],
+        rows: &[Vec<f64>],
+        spacing: f64,
+        leave_one_out: bool,
+    ) -> Result<Self, String> {
+        let dim = features.means.len();
+        let standardised: Vec<[f64; 2]> = poses
+            .iter()
+            .map(|p| [pose.apply(0, p[0]), pose.apply(1, p[1])])
+            .collect();
+        let outputs = features.apply_rows(rows);
+        let mut kernels = Vec::with_capacity(dim);
+        for (i, h) in hyper.iter().enumerate() {
+            let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
+            let kernel = FeatureKernel::new(h, &standardised, &column, leave_one_out)
+                .map_err(|e| format!("feature {i}: {e}"))?;
+            kernels.push(kernel);
+        }
+        let grid = Grid::tabulate(&pose, &features, &kernels, poses, spacing);
+        Ok(Self {
+            pose,
+            features,
+            kernels,
+            grid,
+        })
+    }
+
+    /// Number of features.
+    pub(super) fn dim(&self) -> usize {
+        self.kernels.len()
+    }
+
+    /// Every feature's value at pose `q` (mm, inside the grid; outside it, at the nearest point
+    /// of the grid's box) into `values`, and with `jacobian` its gradient (∂f_i/∂x, ∂f_i/∂y), in
+    /// raw feature units.
+    pub(super) fn eval(&self, q: [f64; 2], values: &mut [f64], jacobian: Option<&mut [[f64; 2]]>) {
+        self.grid.eval(q, self.kernels.len(), values, jacobian);
+    }
+
+    /// Feature `i`'s value and gradient at `q` from the Gaussian process itself (what the grid
+    /// interpolates).
+    #[cfg(test)]
+    fn exact(&self, i: usize, q: [f64; 2]) -> (f64, [f64; 2]) {
+        let z = [self.pose.apply(0, q[0]), self.pose.apply(1, q[1])];
+        let [v, gx, gy, _] = self.kernels[i].value_gradient_cross(z);
+        let s = self.features.scales[i];
+        (
+            self.features.means[i] + s * v,
+            [s * gx / self.pose.scales[0], s * gy / self.pose.scales[1]],
+        )
+    }
+
+    /// Each feature's RMS leave-one-out residual (raw units): how far each sample's value lies
+    /// from the process fitted without that sample, α_j / (K⁻¹)_jj. `None` unless built with
+    /// `leave_one_out`.
+    pub(super) fn leave_one_out_rms(&self) -> Option<Vec<f64>> {
+        (self.kernels.iter().enumerate())
+            .map(|(i, k)| {
+                let inverse = k.inverse_diagonal.as_ref()?;
+                let n = inverse.len().max(1) as f64;
+                let sum: f64 = (k.alpha.iter().zip(inverse))
+                    .map(|(a, d)| (a / d) * (a / d))
+                    .sum();
+                Some(self.features.scales[i] * (sum / n).sqrt())
+            })
+            .collect()
+    }
+}
+
+impl Grid {
+    /// The maps at every node of a grid of about `spacing` mm over the poses' bounding box (at
+    /// least 2 and at most [`MAX_GRID_NODES`] nodes per axis).
+    fn tabulate(
+        pose: &Standardisation,
+        features: &Standardisation,
+        kernels: &[FeatureKernel],
+        poses: &[[f64; 2]],
+        spacing: f64,
+    ) -> Self {
+        let (lo, hi) = bounding_box(poses);
+        let mut nodes = [2usize; 2];
+        let mut step = [1.0; 2];
+        for k in 0..2 {
+            let extent = hi[k] - lo[k];
+            if extent > 0.0 {
+                nodes[k] = ((extent / spacing).ceil() as usize + 1).clamp(2, MAX_GRID_NODES);
+                step[k] = extent / (nodes[k] - 1) as f64;
+            }
+        }
+        let dim = kernels.len();
+        let node = |c: usize, r: usize| [lo[0] + c as f64 * step[0], lo[1] + r as f64 * step[1]];
+        let row = |r: usize| -> Vec<[f64; 4]> {
+            let mut out = Vec::with_capacity(nodes[0] * dim);
+            for c in 0..nodes[0] {
+                let q = node(c, r);
+                let z = [pose.apply(0, q[0]), pose.apply(1, q[1])];
+                for (i, kernel) in kernels.iter().enumerate() {
+                    let [v, gx, gy, gxy] = kernel.value_gradient_cross(z);
+                    let (s, [sx, sy]) = (features.scales[i], [pose.scales[0], pose.scales[1]]);
+                    out.push([
+                        features.means[i] + s * v,
+                        s * gx / sx,
+                        s * gy / sy,
+                        s * gxy / (sx * sy),
+                    ]);
+                }
+            }
+            out
+        };
+        // Two threads, each taking every other row; the table does not depend on the split.
+        let mut rows: Vec<Vec<[f64; 4]>> = vec![Vec::new(); nodes[1]];
+        std::thread::scope(|scope| {
+            let row = &row;
+            let handles: Vec<_> = (0..2)
+                .map(|t| {
+                    scope.spawn(move || {
+                        (t..nodes[1])
+                            .step_by(2)
+                            .map(|r| (r, row(r)))
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            for handle in handles {
+                for (r, values) in handle.join().unwrap_or_default() {
+                    rows[r] = values;
+                }
+            }
+        });
+        Self {
+            origin: lo,
+            step,
+            nodes,
+            table: rows.concat(),
+        }
+    }
+
+    fn eval(&self, q: [f64; 2], dim: usize, values: &mut [f64], jacobian: Option<&mut [[f64; 2]]>) {
+        // Cell and position within it, clamped to the grid.
+        let mut cell = [0usize; 2];
+        let mut t = [0.0; 2];
+        for k in 0..2 {
+            let x = ((q[k] - self.origin[k]) / self.step[k]).clamp(0.0, (self.nodes[k] - 1) as f64);
+            let c = (x.floor() as usize).min(self.nodes[k] - 2);
+            cell[k] = c;
+            t[k] = x - c as f64;
+        }
+        // Hermite basis h00, h10, h01, h11 and their derivatives, per axis.
+        let basis = |t: f64| {
+            let (t2, t3) = (t * t, t * t * t);
+            (
+                [
+                    2.0 * t3 - 3.0 * t2 + 1.0,
+                    t3 - 2.0 * t2 + t,
+                    -2.0 * t3 + 3.0 * t2,
+                    t3 - t2,
+                ],
+                [
+                    6.0 * t2 - 6.0 * t,
+                    3.0 * t2 - 4.0 * t + 1.0,
+                    -6.0 * t2 + 6.0 * t,
+                    3.0 * t2 - 2.0 * t,
+                ],
+            )
+        };
+        let ((bx, dbx), (by, dby)) = (basis(t[0]), basis(t[1]));
+        let [hx, hy] = self.step;
+        let corners = [(0, 0), (1, 0), (0, 1), (1, 1)];
+        let index = |a: usize, b: usize| ((cell[1] + b) * self.nodes[0] + cell[0] + a) * dim;
+        // Per corner: the weights of f, h·fx, h·fy, h²·fxy, and of their x and y derivatives.
+        let weights = corners.map(|(a, b)| {
+            let (v0, v1, w0, w1) = (bx[2 * a], bx[2 * a + 1], by[2 * b], by[2 * b + 1]);
+            let (d0, d1, e0, e1) = (dbx[2 * a], dbx[2 * a + 1], dby[2 * b], dby[2 * b + 1]);
+            (
+                [v0 * w0, hx * v1 * w0, hy * v0 * w1, hx * hy * v1 * w1],
+                [d0 * w0 / hx, d1 * w0, d0 * w1 * hy / hx, hy * d1 * w1],
+                [v0 * e0 / hy, hx * v1 * e0 / hy, v0 * e1, hx * v1 * e1],
+                index(a, b),
+            )
+        });
+        match jacobian {
+            None => {
+                for (i, v) in values[..dim].iter_mut().enumerate() {
+                    let mut sum = 0.0;
+                    for (w, _, _, at) in &weights {
+                        let n = &self.table[at + i];
+                        sum += w[0] * n[0] + w[1] * n[1] + w[2] * n[2] + w[3] * n[3];
+                    }
+                    *v = sum;
+                }
+            }
+            Some(jac) => {
+                for (i, (v, g)) in values[..dim].iter_mut().zip(jac.iter_mut()).enumerate() {
+                    let (mut sum, mut gx, mut gy) = (0.0, 0.0, 0.0);
+                    for (w, wx, wy, at) in &weights {
+                        let n = &self.table[at + i];
+                        sum += w[0] * n[0] + w[1] * n[1] + w[2] * n[2] + w[3] * n[3];
+                        gx += wx[0] * n[0] + wx[1] * n[1] + wx[2] * n[2] + wx[3] * n[3];
+                        gy += wy[0] * n[0] + wy[1] * n[1] + wy[2] * n[2] + wy[3] * n[3];
+                    }
+                    *v = sum;
+                    *g = [gx, gy];
+                }
+            }
+        }
+    }
+}
+
+impl FeatureKernel {
+    fn new(
+        h: &SurrogateHyperparameters,
+        standardised: &[[f64; 2]],
+        y: &[f64],
+        leave_one_out: bool,
+    ) -> Result<Self, String> {
+        let inverse_length = [1.0 / h.length_scales[0], 1.0 / h.length_scales[1]];
+        let inputs: Vec<[f64; 2]> = standardised
+            .iter()
+            .map(|p| [p[0] * inverse_length[0], p[1] * inverse_length[1]])
+            .collect();
+        let n = inputs.len();
+        let signal_var = h.signal_std * h.signal_std;
+        let mut kernel = DMatrix::zeros(n, n);
+        for j in 0..n {
+            for i in 0..j {
+                let k = signal_var * (-0.5 * squared(inputs[i], inputs[j])).exp();
+                kernel[(i, j)] = k;
+                kernel[(j, i)] = k;
+            }
+        }
+        let y = DMatrix::from_column_slice(n, 1, y);
+        let base = h.noise_std * h.noise_std;
+        for noise_var in std::iter::once(base).chain(JITTERS.iter().map(|j| base + j * signal_var))
+        {
+            let mut k = kernel.clone();
+            for i in 0..n {
+                k[(i, i)] = signal_var + noise_var;
+            }
+            let Some(chol) = Cholesky::new(k) else {
+                continue;
+            };
+            let alpha = chol.solve(&y).iter().copied().collect();
+            let inverse_diagonal = leave_one_out.then(|| {
+                let inverse = upper_inverse(chol.l_dirty());
+                (0..n).map(|i| inverse[i + i * n]).collect()
+            });
+            return Ok(Self {
+                inputs,
+                alpha,
+                signal_var,
+                inverse_length,
+                inverse_diagonal,
+            });
+        }
+        Err("the kernel matrix is not positive definite, even with jitter".into())
+    }
+
+    /// The standardised value, its gradient and its mixed second derivative ∂²/∂z_x∂z_y, in
+    /// standardised pose units.
+    fn value_gradient_cross(&self, z: [f64; 2]) -> [f64; 4] {
+        let u = [z[0] * self.inverse_length[0], z[1] * self.inverse_length[1]];
+        let (mut v, mut gx, mut gy, mut gxy) = (0.0, 0.0, 0.0, 0.0);
+        for (x, a) in self.inputs.iter().zip(&self.alpha) {
+            let k = a * (-0.5 * squared(u, *x)).exp();
+            let (dx, dy) = (u[0] - x[0], u[1] - x[1]);
+            v += k;
+            gx -= k * dx;
+            gy -= k * dy;
+            gxy += k * dx * dy;
+        }
+        let s = self.signal_var;
+        let [lx, ly] = self.inverse_length;
+        [s * v, s * gx * lx, s * gy * ly, s * gxy * lx * ly]
+    }
+}
+
+fn squared(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::synthetic::{workspace_mesh, workspace_points};
+    use rand::SeedableRng;
+
+    /// A surrogate of two smooth maps on the 1 mm mesh, with fixed hyperparameters.
+    fn surrogate(spacing: f64, leave_one_out: bool) -> Surrogate {
+        let poses = workspace_mesh(20);
+        let rows: Vec<Vec<f64>> = poses
+            .iter()
+            .map(|q| {
+                vec![
+                    (q[0] / 6.0).sin() + q[1] / 20.0,
+                    (q[0] * q[1] / 300.0).cos(),
+                ]
+            })
+            .collect();
+        let pose = Standardisation::fit(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>(), 2);
+        let features = Standardisation::fit(&rows, 2);
+        let h = SurrogateHyperparameters {
+            length_scales: [0.8, 1.1],
+            signal_std: 1.0,
+            noise_std: 1e-3,
+            log_marginal_likelihood: 0.0,
+        };
+        Surrogate::new(
+            pose,
+            features,
+            &[h.clone(), h],
+            &poses,
+            &rows,
+            spacing,
+            leave_one_out,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn the_grid_reproduces_the_process_and_its_slopes() {
+        let s = surrogate(0.25, false);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (mut values, mut jac) = (vec![0.0; 2], vec![[0.0; 2]; 2]);
+        for q in workspace_points(200, &mut rng) {
+            s.eval(q, &mut values, Some(&mut jac));
+            for i in 0..2 {
+                let (v, g) = s.exact(i, q);
+                assert!(
+                    (values[i] - v).abs() < 1e-7,
+                    "{q:?} value {} vs {v}",
+                    values[i]
+                );
+                for k in 0..2 {
+                    assert!(
+                        (jac[i][k] - g[k]).abs() < 1e-5,
+                        "{q:?} slope {:?} vs {g:?}",
+                        jac[i]
+                    );
+                }
+            }
+            // The value alone is the same interpolation.
+            let mut alone = vec![0.0; 2];
+            s.eval(q, &mut alone, None);
+            assert_eq!(alone, values);
+        }
+    }
+
+    #[test]
+    fn a_coarse_grid_is_measurably_worse() {
+        // Guards the interpolation itself: with nodes 4 mm apart the error is visible.
+        let s = surrogate(4.0, false);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let mut values = vec![0.0; 2];
+        let worst = workspace_points(200, &mut rng)
+            .into_iter()
+            .map(|q| {
+                s.eval(q, &mut values, None);
+                (values[0] - s.exact(0, q).0).abs()
+            })
+            .fold(0.0f64, f64::max);
+        assert!(worst > 1e-5 && worst < 1e-1, "{worst}");
+    }
+
+    #[test]
+    fn leave_one_out_only_when_asked() {
+        assert!(surrogate(0.25, false).leave_one_out_rms().is_none());
+        let rms = surrogate(0.25, true).leave_one_out_rms().unwrap();
+        // Smooth maps on a 1 mm mesh: held-out residuals are small but not zero.
+        for r in rms {
+            assert!(r > 0.0 && r < 1e-2, "{r}");
+        }
+    }
+}

@@ -1,0 +1,49 @@
+//! Synthetic feature maps with a known answer, for tests and benches of the estimators: smooth,
+//! non-linear functions of the pose over the rig's workspace, measured with seeded Gaussian noise.
+
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+
+/// Feature `i` of pose `q` (mm, x ∈ [−9.5, 9.5], y ∈ [38, 57]): a plane wave of its own
+/// direction and frequency plus a gentle bowl, so that every pair of features crosses at an
+/// angle and no feature is linear.
+pub fn feature_value(i: usize, q: [f64; 2]) -> f64 {
+    let angle = 0.7 + 1.3 * i as f64;
+    let (u, v) = (q[0] / 19.0, (q[1] - 47.5) / 19.0);
+    let along = angle.cos() * u + angle.sin() * v;
+    let frequency = 1.5 + 0.25 * (i % 4) as f64;
+    (frequency * along * std::f64::consts::PI).sin() + 0.3 * (u * u + v * v) + 0.1 * i as f64
+}
+
+/// Every one of `features` feature values of pose `q`, each with Gaussian noise of standard
+/// deviation `noise` drawn from `rng`.
+pub fn feature_row(
+    features: usize,
+    q: [f64; 2],
+    noise: f64,
+    rng: &mut impl Rng,
+) -> Vec<Option<f64>> {
+    let normal = Normal::new(0.0, noise.max(0.0)).unwrap_or(Normal::new(0.0, 0.0).expect("σ = 0"));
+    (0..features)
+        .map(|i| Some(feature_value(i, q) + normal.sample(rng)))
+        .collect()
+}
+
+/// The mesh of the workspace with `per_side` × `per_side` nodes (20: the 1 mm mesh).
+pub fn workspace_mesh(per_side: usize) -> Vec<[f64; 2]> {
+    let step = if per_side > 1 {
+        19.0 / (per_side - 1) as f64
+    } else {
+        0.0
+    };
+    (0..per_side)
+        .flat_map(|r| (0..per_side).map(move |c| [-9.5 + c as f64 * step, 38.0 + r as f64 * step]))
+        .collect()
+}
+
+/// `count` poses drawn uniformly from the workspace.
+pub fn workspace_points(count: usize, rng: &mut impl Rng) -> Vec<[f64; 2]> {
+    (0..count)
+        .map(|_| [rng.random_range(-9.5..=9.5), rng.random_range(38.0..=57.0)])
+        .collect()
+}
