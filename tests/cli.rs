@@ -401,8 +401,9 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
         "{stderr}"
     );
     let table = String::from_utf8_lossy(&out.stdout);
-    // One row per variant and method: 3 variants × (evidential, knn, gp, centre).
-    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 12);
+    // One row per variant and method, 3 variants × (evidential, continuous, knn, gp, centre),
+    // then one row per variant in the table of the continuous tracker's plausibility regions.
+    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 18);
     for file in [
         "sweep.json",
         "sweep.csv",

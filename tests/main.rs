@@ -3,6 +3,7 @@
 mod adaptive;
 mod baselines;
 mod cli;
+mod continuous;
 mod dataset;
 mod evidence;
 mod faults;

@@ -92,14 +92,19 @@ fn paper_table_meets_its_expectations() {
         (d.difference.mean, d.difference.half_width),
         (0.0, Some(0.0))
     );
-    // Every method against every later one, in every variant: gp < knn < evidential < centre.
+    // Every method against every later one, in every variant: gp < knn < evidential < centre,
+    // and the continuous tracker below the paper's, 6-NN and the centre everywhere, below the GP
+    // on the size functions alone (a–d) and above it with the barycentre (e).
     for f in report
         .findings
         .iter()
         .filter(|f| f.comparison.name.contains('−'))
     {
         let expected = match f.comparison.name.as_str() {
-            "evidential − knn" | "evidential − gp" | "knn − gp" => Verdict::LeftHigher,
+            "evidential − knn" | "evidential − gp" | "knn − gp" | "evidential − continuous" => {
+                Verdict::LeftHigher
+            }
+            "continuous − gp" if f.comparison.left.scenario == "paper-e" => Verdict::LeftHigher,
             _ => Verdict::LeftLower,
         };
         assert_eq!(f.verdict, expected, "{f:?}");
@@ -110,22 +115,32 @@ fn paper_table_meets_its_expectations() {
         ("paper-e", "knn − gp", 0.1626),
         ("paper-a", "evidential − knn", 4.2318),
         ("paper-e", "evidential − knn", 2.0841),
+        ("paper-a", "continuous − gp", -0.02285),
+        ("paper-c", "continuous − gp", -0.06158),
+        ("paper-e", "continuous − gp", 0.003101),
+        ("paper-e", "evidential − continuous", 2.2437),
     ] {
         let f = (report.findings.iter())
             .find(|f| f.comparison.name == name && f.comparison.left.scenario == variant)
             .unwrap();
         assert!(close(f.difference.mean, readme), "{variant} {name}: {f:?}");
     }
-    for (variant, readme) in [
-        ("paper-a", 4.7065),
-        ("paper-b", 3.5335),
-        ("paper-c", 4.7172),
-        ("paper-e", 2.2629),
+    for (variant, method, readme) in [
+        ("paper-a", "evidential", 4.7065),
+        ("paper-b", "evidential", 3.5335),
+        ("paper-c", "evidential", 4.7172),
+        ("paper-e", "evidential", 2.2629),
+        ("paper-a", "continuous", 0.3826),
+        ("paper-e", "continuous", 0.01925),
+        ("paper-e", "gp", 0.01615),
     ] {
         let v = (report.variants.iter())
-            .find(|v| v.side.scenario == variant && v.side.method == "evidential")
+            .find(|v| v.side.scenario == variant && v.side.method == method)
             .unwrap();
-        assert!(close(v.mean_error.mean, readme), "{variant}: {v:?}");
+        assert!(
+            close(v.mean_error.mean, readme),
+            "{variant} {method}: {v:?}"
+        );
     }
     // Seed 1, each variant's own: the table and the expectations.
     let summaries: Vec<RunSummary> = all.into_iter().filter(|s| s.seed == 1).collect();
@@ -175,6 +190,33 @@ fn paper_table_meets_its_expectations() {
     // 6 distance-weighted neighbours beat the nearest sample alone.
     assert!(of(a, "knn") < of(&summaries[5], "knn"));
     assert!(of(e, "knn") < of(&summaries[6], "knn"));
+    // The continuous evidential tracker on (e) (README, issue 13): at most 1.5× the GP of the
+    // same run, and below the best discrete evidential model (`best.toml` n24, 0.2986 mm).
+    assert!(of(e, "continuous") <= 1.5 * of(e, "gp"));
+    assert!(of(e, "continuous") < 0.2986);
+    // Its plausibility regions at the level chosen for 90 % of the validation poses, on the
+    // clean test frames (README): 0.945 with all 8 features, 0.830 with the 6 size functions.
+    let region = |s: &RunSummary| {
+        s.method("continuous")
+            .and_then(|m| m.region.clone())
+            .unwrap()
+    };
+    for (s, coverage, area) in [(e, 0.945, 0.004412), (a, 0.830, 0.9951)] {
+        let r = region(s);
+        assert_eq!(
+            (r.frames, r.frames_without_region),
+            (200, 0),
+            "{}",
+            s.scenario
+        );
+        assert!(
+            (r.coverage - coverage).abs() < 1e-9,
+            "{}: {r:?}",
+            s.scenario
+        );
+        assert!(close(r.mean_area, area), "{}: {r:?}", s.scenario);
+    }
+    assert!(region(e).coverage >= 0.9);
 }
 
 #[test]
