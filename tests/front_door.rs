@@ -97,7 +97,7 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         args.extend(["--variant", v]);
     }
     ok(evitrack(&args));
-    for method in ["evidential", "knn", "gp", "centre"] {
+    for method in ["evidential", "continuous", "knn", "gp", "centre"] {
         let model = match method {
             "evidential" => run_dir.join("model.json"),
             other => run_dir.join(format!("model-{other}.json")),
@@ -349,7 +349,7 @@ fn every_method_trains_and_tracks_from_the_command_line() {
         r#"kind = "circle", radius = 5, speed = 10, duration = 2, fps = 10"#,
     );
     let mut means = Vec::new();
-    for method in ["knn", "gp", "centre"] {
+    for method in ["knn", "gp", "centre", "continuous"] {
         let model = path(&format!("{method}.json"));
         ok(evitrack(&[
             "train",
@@ -387,11 +387,44 @@ fn every_method_trains_and_tracks_from_the_command_line() {
         assert_eq!(bad.status.code(), Some(2));
         assert!(String::from_utf8_lossy(&bad.stderr).contains("evidential models only"));
     }
-    // On the 2 mm mesh with 8 features: the regressors beat knowing nothing by far.
+    // On the 2 mm mesh with 8 features: the regressors and the continuous tracker beat knowing
+    // nothing by far.
     assert!(
-        means[0] < 1.0 && means[1] < 1.0 && means[2] > 3.0,
+        means[0] < 1.0 && means[1] < 1.0 && means[2] > 3.0 && means[3] < 1.0,
         "{means:?}"
     );
+    // The continuous tracker takes a threshold and a selection at training, not a constructor;
+    // a learned threshold needs a validation dataset.
+    let model = path("continuous-fixed.json");
+    ok(evitrack(&[
+        "train",
+        &path("sample"),
+        "--out",
+        &model,
+        "--barycentre",
+        "--method",
+        "continuous",
+        "--threshold",
+        "12.5",
+        "--selection",
+        "lowest:5",
+    ]));
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    assert_eq!(file["conflict_threshold"], 12.5);
+    assert_eq!(file["settings"]["selection"]["min_size"], 5);
+    let bad = evitrack(&[
+        "train",
+        &path("sample"),
+        "--out",
+        &path("y.json"),
+        "--method",
+        "continuous",
+        "--constructor",
+        "consonant",
+    ]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--method evidential only"));
     let bad = evitrack(&[
         "train",
         &path("sample"),
