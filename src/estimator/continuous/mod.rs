@@ -402,14 +402,10 @@ impl Continuous {
         group: &[usize],
         q: [f64; 2],
     ) -> Result<Option<f64>, EstimatorError> {
-        let (values, _) = frame_values(features, self.file.feature_names.len())?;
-        let mut frame = Frame::new(self, self.usable(values));
-        let mask = group.iter().fold(0u32, |m, &i| m | 1 << i);
-        if group.is_empty() || mask & !frame.usable_mask != 0 {
-            return Ok(None);
-        }
-        let best = frame.fit(mask).chi2;
-        Ok(Some((-0.5 * (frame.chi2_of(mask, q) - best)).exp()))
+        Ok(self.group_frame(features, group)?.map(|(mut frame, mask)| {
+            let best = frame.fit(mask).chi2;
+            (-0.5 * (frame.chi2_of(mask, q) - best)).exp()
+        }))
     }
 
     /// Level of conflict of the features in `group` (indices) in this frame, ½ min_q χ²;
@@ -422,13 +418,23 @@ impl Continuous {
         features: &[Option<f64>],
         group: &[usize],
     ) -> Result<Option<f64>, EstimatorError> {
+        Ok(self
+            .group_frame(features, group)?
+            .map(|(mut frame, mask)| 0.5 * frame.fit(mask).chi2))
+    }
+
+    /// The frame of `features` and the mask of `group`; `None` when the group is empty or a
+    /// named feature is not usable in the frame.
+    fn group_frame(
+        &self,
+        features: &[Option<f64>],
+        group: &[usize],
+    ) -> Result<Option<(Frame<'_>, u32)>, EstimatorError> {
         let (values, _) = frame_values(features, self.file.feature_names.len())?;
-        let mut frame = Frame::new(self, self.usable(values));
-        let mask = group.iter().fold(0u32, |m, &i| m | 1 << i);
-        if group.is_empty() || mask & !frame.usable_mask != 0 {
-            return Ok(None);
-        }
-        Ok(Some(0.5 * frame.fit(mask).chi2))
+        let frame = Frame::new(self, self.usable(values));
+        let mask = group.iter().fold(0u32, |m, &i| m | 1 << i.min(31));
+        let known = group.iter().all(|&i| i < self.file.feature_names.len());
+        Ok((known && !group.is_empty() && mask & !frame.usable_mask == 0).then_some((frame, mask)))
     }
 
     /// The frame's values a feature with a usable noise scale can take part with.

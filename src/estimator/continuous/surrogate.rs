@@ -107,27 +107,7 @@ pub(super) fn fit_hyperparameters(
             log_marginal_likelihood: -value * m as f64,
         })
     };
-    // Two threads, each taking every other feature; the results do not depend on the split.
-    let mut found: Vec<Option<SurrogateHyperparameters>> = vec![None; dim];
-    std::thread::scope(|scope| {
-        let fit_one = &fit_one;
-        let handles: Vec<_> = (0..2)
-            .map(|t| {
-                scope.spawn(move || {
-                    (t..dim)
-                        .step_by(2)
-                        .map(|i| (i, fit_one(i)))
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        for handle in handles {
-            for (i, h) in handle.join().unwrap_or_default() {
-                found[i] = h;
-            }
-        }
-    });
-    found
+    on_two_threads(dim, fit_one)
 }
 
 impl Surrogate {
@@ -247,26 +227,7 @@ impl Grid {
             }
             out
         };
-        // Two threads, each taking every other row; the table does not depend on the split.
-        let mut rows: Vec<Vec<[f64; 4]>> = vec![Vec::new(); nodes[1]];
-        std::thread::scope(|scope| {
-            let row = &row;
-            let handles: Vec<_> = (0..2)
-                .map(|t| {
-                    scope.spawn(move || {
-                        (t..nodes[1])
-                            .step_by(2)
-                            .map(|r| (r, row(r)))
-                            .collect::<Vec<_>>()
-                    })
-                })
-                .collect();
-            for handle in handles {
-                for (r, values) in handle.join().unwrap_or_default() {
-                    rows[r] = values;
-                }
-            }
-        });
+        let rows = on_two_threads(nodes[1], row);
         Self {
             origin: lo,
             step,
@@ -412,6 +373,29 @@ impl FeatureKernel {
         let [lx, ly] = self.inverse_length;
         [s * v, s * gx * lx, s * gy * ly, s * gxy * lx * ly]
     }
+}
+
+/// `f(0)`, …, `f(count − 1)` on two threads, each taking every other index: the results do not
+/// depend on the split. A panic in `f` is resumed here.
+fn on_two_threads<T: Send>(count: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let mut slots: Vec<Option<T>> = (0..count).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        let f = &f;
+        let handles: Vec<_> = (0..2)
+            .map(|t| {
+                scope.spawn(move || (t..count).step_by(2).map(|i| (i, f(i))).collect::<Vec<_>>())
+            })
+            .collect();
+        for handle in handles {
+            let done = handle
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            for (i, value) in done {
+                slots[i] = Some(value);
+            }
+        }
+    });
+    slots.into_iter().flatten().collect()
 }
 
 fn squared(a: [f64; 2], b: [f64; 2]) -> f64 {
