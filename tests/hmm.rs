@@ -316,3 +316,67 @@ fn large_offset_does_not_spoil_variances() {
     }
     assert!((a.log_likelihood - b.log_likelihood).abs() < 1e-3 * a.log_likelihood.abs());
 }
+
+/// Issue 14: on the simulated rig's 1 mm mesh (the training data of the paper's table), the
+/// default EM reaches, for every feature at 2 and 3 states, the best log-likelihood of 20 varied
+/// restarts (each kind of start, run to a tight tolerance) to within 1e-3, relative; and it is
+/// not stopped by the plateau that ended `size_line0` at 2 states 0.8 % short under the old
+/// stopping rule.
+#[test]
+fn default_em_reaches_the_best_of_twenty_varied_restarts_on_the_mesh() {
+    use evitrack::features::FeatureConfig;
+    use evitrack::sim::{simulate, Motion, SimSettings};
+    let dataset = simulate(
+        &SimSettings::default(),
+        &Motion::Mesh { spacing: 1.0 },
+        7,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let set = FeatureConfig::with_barycentre().check().unwrap();
+    let rows = set.extract_batch(dataset.images());
+    let tight = HmmSettings {
+        restarts: 4,
+        max_iterations: 5000,
+        tolerance: 1e-12,
+        patience: 20,
+        ..HmmSettings::default()
+    };
+    let mut worst: f64 = 0.0;
+    for (f, name) in set.names().iter().enumerate() {
+        let column: Vec<f64> = rows.iter().map(|r| r[f].unwrap()).collect();
+        for k in [2, 3] {
+            let fit = GaussianHmm::fit(&column, k, &HmmSettings::default(), 0).unwrap();
+            assert!(fit.converged, "{name} at {k} states");
+            // 5 seeds × (k-means++, partition, quantiles, random) = 20 varied restarts.
+            let best = (0..5u64)
+                .map(|seed| GaussianHmm::fit(&column, k, &tight, 1000 + seed).unwrap())
+                .map(|f| f.log_likelihood)
+                .fold(f64::NEG_INFINITY, f64::max);
+            let gap = (best - fit.log_likelihood) / best.abs();
+            assert!(
+                gap < 1e-3,
+                "{name} at {k} states: {} against {best}",
+                fit.log_likelihood
+            );
+            worst = worst.max(gap);
+        }
+    }
+    eprintln!("largest relative gap to the best of 20 varied restarts: {worst:.2e}");
+    // The plateau: with the old rule (one iteration below 1e-4 per observation) k-means++ alone
+    // stops at 577.6; the default rule carries the same start on to 582.1.
+    let line0: Vec<f64> = rows.iter().map(|r| r[0].unwrap()).collect();
+    let old = HmmSettings {
+        restarts: 1,
+        tolerance: 1e-4,
+        patience: 1,
+        ..HmmSettings::default()
+    };
+    let new = HmmSettings {
+        restarts: 1,
+        ..HmmSettings::default()
+    };
+    let stopped = GaussianHmm::fit(&line0, 2, &old, 0).unwrap().log_likelihood;
+    let carried = GaussianHmm::fit(&line0, 2, &new, 0).unwrap().log_likelihood;
+    assert!(carried - stopped > 4.0, "{stopped} → {carried}");
+}

@@ -66,16 +66,18 @@ fn paper_table_meets_its_expectations() {
             .unwrap_or_else(|| panic!("no finding {name}"))
     };
     for (name, readme, verdict) in [
-        ("b < a", -1.1731, Verdict::LeftLower),
-        ("c > a", 0.0107, Verdict::LeftHigher),
-        ("e < b", -1.2705, Verdict::LeftLower),
+        ("b < a", -1.2290, Verdict::LeftLower),
+        // The paper's (c) > (a) does not hold here: halving the trajectory lowers the error a
+        // little (README).
+        ("c > a", -0.007329, Verdict::LeftLower),
+        ("e < b", -1.2700, Verdict::LeftLower),
     ] {
         let f = finding(name);
         assert_eq!(f.difference.n, 10);
         assert!(close(f.difference.mean, readme), "{name}: {f:?}");
         assert_eq!(f.verdict, verdict, "{name}: {f:?}");
     }
-    // Seed by seed, (c) < (a) on 4 of the 10 seeds (2, 3, 7 and 8).
+    // Seed by seed, (c) < (a) on 8 of the 10 seeds (2 to 9).
     let evidential = |variant: &str, seed: u64| {
         let run = all
             .iter()
@@ -86,12 +88,13 @@ fn paper_table_meets_its_expectations() {
     let favour_c: Vec<u64> = (1..=10)
         .filter(|&k| evidential("paper-c", k) < evidential("paper-a", k))
         .collect();
-    assert_eq!(favour_c, [2, 3, 7, 8]);
+    assert_eq!(favour_c, [2, 3, 4, 5, 6, 7, 8, 9]);
+    // (d) = (a) up to rounding: the relative plausibilities are the same numbers computed in
+    // another order.
     let d = finding("d = a");
-    assert_eq!(
-        (d.difference.mean, d.difference.half_width),
-        (0.0, Some(0.0))
-    );
+    assert!(d.difference.mean.abs() < 1e-12, "{d:?}");
+    assert!(d.difference.half_width.unwrap() < 1e-12, "{d:?}");
+    assert_eq!(d.verdict, Verdict::NoMeasurableEffect);
     // Every method against every later one, in every variant: gp < knn < evidential < centre,
     // and the continuous tracker below the paper's, 6-NN and the centre everywhere, below the GP
     // on the size functions alone (a–d) and above it with the barycentre (e).
@@ -113,12 +116,12 @@ fn paper_table_meets_its_expectations() {
     for (variant, name, readme) in [
         ("paper-a", "knn − gp", 0.0693),
         ("paper-e", "knn − gp", 0.1626),
-        ("paper-a", "evidential − knn", 4.2318),
-        ("paper-e", "evidential − knn", 2.0841),
+        ("paper-a", "evidential − knn", 4.2565),
+        ("paper-e", "evidential − knn", 2.0536),
         ("paper-a", "continuous − gp", -0.02285),
         ("paper-c", "continuous − gp", -0.06158),
         ("paper-e", "continuous − gp", 0.003101),
-        ("paper-e", "evidential − continuous", 2.2437),
+        ("paper-e", "evidential − continuous", 2.2131),
     ] {
         let f = (report.findings.iter())
             .find(|f| f.comparison.name == name && f.comparison.left.scenario == variant)
@@ -126,10 +129,10 @@ fn paper_table_meets_its_expectations() {
         assert!(close(f.difference.mean, readme), "{variant} {name}: {f:?}");
     }
     for (variant, method, readme) in [
-        ("paper-a", "evidential", 4.7065),
-        ("paper-b", "evidential", 3.5335),
-        ("paper-c", "evidential", 4.7172),
-        ("paper-e", "evidential", 2.2629),
+        ("paper-a", "evidential", 4.7313),
+        ("paper-b", "evidential", 3.5023),
+        ("paper-c", "evidential", 4.7240),
+        ("paper-e", "evidential", 2.2324),
         ("paper-a", "continuous", 0.3826),
         ("paper-e", "continuous", 0.01925),
         ("paper-e", "gp", 0.01615),
@@ -386,7 +389,7 @@ fn states_and_noise_tables_meet_their_expectations() {
             }
         } else {
             // Noise of 0 to 20 grey levels leaves the evidential tracker flat.
-            for (states, lo, hi) in [("e", 2.23, 2.26), ("n12", 0.47, 0.53)] {
+            for (states, lo, hi) in [("e", 2.22, 2.24), ("n12", 0.50, 0.57)] {
                 for sigma in [0, 2, 5, 10, 20] {
                     let e = by(&format!("noise-{states}-sigma{sigma}"));
                     assert!((lo..hi).contains(&e), "{states} σ {sigma}: {e}");

@@ -385,6 +385,13 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         if summary.imputed > 0 {
             notes.push(format!("{} missing values imputed", summary.imputed));
         }
+        if summary.em_converged == Some(false) {
+            notes.push(
+                "EM stopped at its iteration cap before converging (raise \
+                 model.hmm.max_iterations)"
+                    .into(),
+            );
+        }
         table.push([
             summary.name.clone(),
             summary.states.to_string(),

@@ -522,6 +522,7 @@ pub(super) fn em(
     let mut trace = vec![ll];
     let mut iterations = 0;
     let mut converged = false;
+    let mut slow = 0;
     // Two parameter sets swapped each iteration: no allocation inside the loop.
     let mut next = p.clone();
     while iterations < settings.max_iterations {
@@ -537,7 +538,12 @@ pub(super) fn em(
         let gain = next_ll - ll;
         std::mem::swap(&mut p, &mut next);
         ll = next_ll;
-        if gain < settings.tolerance * n {
+        slow = if gain < settings.tolerance * n {
+            slow + 1
+        } else {
+            0
+        };
+        if slow >= settings.patience {
             converged = true;
             break;
         }

@@ -24,6 +24,9 @@ pub struct FeatureModel {
     /// Samples whose value was missing (state by the nearest-pose rule).
     pub(super) imputed: Vec<usize>,
     pub(super) refining: Refining,
+    /// Whether EM met its stopping rule before the iteration cap, when this model was trained
+    /// here (not recorded in model files).
+    pub(super) em_converged: Option<bool>,
 }
 
 impl FeatureModel {
@@ -130,6 +133,7 @@ impl FeatureModel {
             removed_states,
             imputed,
             refining,
+            em_converged: None,
         })
     }
 
@@ -238,6 +242,7 @@ impl FeatureModel {
             n_observations: self.n_observations,
             imputed: self.imputed.len(),
             block_sizes: self.block_sizes(),
+            em_converged: self.em_converged,
         }
     }
 }
@@ -263,6 +268,8 @@ pub struct FeatureSummary {
     pub imputed: usize,
     /// Sample poses per frame element.
     pub block_sizes: Vec<usize>,
+    /// Whether EM met its stopping rule before the iteration cap (`None` for a loaded model).
+    pub em_converged: Option<bool>,
 }
 
 impl fmt::Display for FeatureSummary {

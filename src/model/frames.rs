@@ -108,7 +108,7 @@ impl FeatureFrames {
                     feature: name.clone(),
                     source,
                 })?;
-                let candidate = FeatureModel::from_hmm(
+                let mut candidate = FeatureModel::from_hmm(
                     name,
                     n,
                     fit.hmm,
@@ -117,6 +117,7 @@ impl FeatureFrames {
                     sample_poses,
                     settings.hmm.assignment,
                 )?;
+                candidate.em_converged = Some(fit.converged);
                 let score = match (&settings.tuning, tuner.as_deref_mut()) {
                     (Tuning::Given, _) => 0.0,
                     (Tuning::Bic { .. }, _) => candidate.bic(),
