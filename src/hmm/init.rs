@@ -50,26 +50,31 @@ pub(super) fn init_kmeanspp(y: &[f64], k: usize, floor: f64, rng: &mut ChaCha8Rn
 /// `iterations` Lloyd iterations from `centres` (at most; fewer when nothing changes): the
 /// nearest-centre labels, with the centres moved to their clusters' means.
 fn lloyd(y: &[f64], centres: &mut [f64], iterations: usize) -> Vec<usize> {
-    let (n, k) = (y.len(), centres.len());
-    let mut labels = vec![0usize; n];
+    let mut labels = vec![0usize; y.len()];
     for _ in 0..iterations {
         let changed = nearest_labels(y, centres, &mut labels);
-        let mut sum = vec![0.0; k];
-        let mut count = vec![0usize; k];
-        for (l, v) in labels.iter().zip(y) {
-            sum[*l] += v;
-            count[*l] += 1;
-        }
-        for j in 0..k {
-            if count[j] > 0 {
-                centres[j] = sum[j] / count[j] as f64;
-            }
-        }
+        move_to_cluster_means(y, &labels, centres);
         if !changed {
             break;
         }
     }
     labels
+}
+
+/// Moves every centre whose cluster holds a value to the cluster's mean.
+fn move_to_cluster_means(y: &[f64], labels: &[usize], centres: &mut [f64]) {
+    let k = centres.len();
+    let mut sum = vec![0.0; k];
+    let mut count = vec![0usize; k];
+    for (l, v) in labels.iter().zip(y) {
+        sum[*l] += v;
+        count[*l] += 1;
+    }
+    for j in 0..k {
+        if count[j] > 0 {
+            centres[j] = sum[j] / count[j] as f64;
+        }
+    }
 }
 
 /// Labels every value with its nearest centre; whether any label changed.
@@ -195,19 +200,11 @@ pub(super) fn init_partition(y: &[f64], k: usize, floor: f64) -> Params {
         .iter()
         .map(|v| bounds.iter().filter(|&&b| *v >= b).count())
         .collect();
-    let mut centres = vec![0.0; k];
-    let mut count = vec![0usize; k];
-    for (l, v) in labels.iter().zip(y) {
-        centres[*l] += v;
-        count[*l] += 1;
-    }
-    for j in 0..k {
-        centres[j] = if count[j] > 0 {
-            centres[j] / count[j] as f64
-        } else {
-            points[(ends[j].max(1) - 1).min(m - 1)]
-        };
-    }
+    // A group no value falls in keeps a point of its segment as its centre.
+    let mut centres: Vec<f64> = (ends.iter())
+        .map(|&e| points[(e.max(1) - 1).min(m - 1)])
+        .collect();
+    move_to_cluster_means(y, &labels, &mut centres);
     params_from_labels(y, &labels, centres, floor)
 }
 
