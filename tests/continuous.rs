@@ -361,6 +361,21 @@ fn missing_and_non_finite_values_take_no_part() {
     let e = model.estimate(&lone).unwrap();
     assert_eq!(e.group.as_deref(), Some(&[3][..]));
     assert!(e.pose.is_some() && e.region.is_none() && e.uncertainty_radius.is_none());
+    // Absurd but finite values: no panic, an estimate inside the samples' box; a value no pose
+    // explains is left out, and with every value absurd the level is infinite.
+    let (q, mut wild) = fixture.frames(1, 15).remove(0);
+    wild[2] = Some(1e300);
+    let e = model.estimate(&wild).unwrap();
+    assert!(!e.group.as_ref().unwrap().contains(&2));
+    assert!(distance(e.pose.unwrap(), q) < 0.05);
+    let all_wild = vec![Some(-1e300); FEATURES];
+    let e = model.estimate(&all_wild).unwrap();
+    let p = e.pose.unwrap();
+    assert!(
+        (-9.5..=9.5).contains(&p[0]) && (38.0..=57.0).contains(&p[1]),
+        "{p:?}"
+    );
+    assert!(e.flags.fallback);
     // Nothing left: no estimate, no error.
     let e = model.estimate(&[None; FEATURES]).unwrap();
     assert!(e.pose.is_none() && e.group.is_none());
