@@ -128,6 +128,10 @@ const INITIAL_SLOTS: usize = 1 << 16;
 #[cfg(test)]
 const INITIAL_SLOTS: usize = 4;
 
+/// Below this running mass, Dempster mode divides the running result by it instead of scaling
+/// the next function's masses by its inverse.
+const RESCALE_BELOW: f64 = 1e-150;
+
 /// Buffers larger than this (in words) are released after use instead of being kept.
 const KEEP_WORDS: usize = 1 << 20;
 
@@ -304,6 +308,45 @@ impl Engine {
     }
 }
 
+impl Engine {
+    /// The Dempster step in log scale, for when every kept product underflowed to 0 (two masses
+    /// of 1e-300 on a shared element): out ← the non-empty intersections, with masses relative
+    /// to the largest product. Returns the natural log of that product, or `None` when no pair
+    /// intersects (true total conflict).
+    #[cold]
+    fn step_log(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> Option<f64> {
+        let w = self.w;
+        let pairs = || {
+            cur.words
+                .chunks_exact(w)
+                .zip(&cur.mass)
+                .flat_map(move |(a, &ma)| {
+                    (b.words.chunks_exact(w).zip(&b.mass)).filter_map(move |(bw, &mb)| {
+                        let meet = a.iter().zip(bw).any(|(x, y)| x & y != 0);
+                        (meet && ma > 0.0 && mb > 0.0).then(|| (a, bw, ma.ln() + mb.ln()))
+                    })
+                })
+        };
+        let top = pairs().map(|(_, _, l)| l).fold(f64::NEG_INFINITY, f64::max);
+        if !top.is_finite() {
+            return None;
+        }
+        let mut mask = self.prepare(cur.len() * b.len(), out);
+        let mut x = vec![0u64; w];
+        for (a, bw, l) in pairs() {
+            for ((xk, ak), bk) in x.iter_mut().zip(a).zip(bw) {
+                *xk = ak & bk;
+            }
+            let h = hash_words(&x, &self.keys);
+            if 2 * out.len() >= mask {
+                mask = self.grow(out);
+            }
+            Self::insert(&mut self.table, mask, out, &x, h, (l - top).exp());
+        }
+        Some(top)
+    }
+}
+
 fn frame_of<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
 ) -> Result<(usize, Vec<&'a MassFunction>), EvidenceError> {
@@ -374,11 +417,30 @@ fn run_in<R>(
                     *m /= s;
                 }
                 (_, s) = engine.step(cur, b, next);
+                if s <= 0.0 && next.len() > 0 {
+                    // Intersections exist but their products underflowed: redo in log scale,
+                    // adding the step's level here and leaving a normalised running result.
+                    if let Some(top) = engine.step_log(cur, b, next) {
+                        let sum: f64 = next.mass.iter().sum();
+                        for m in &mut next.mass {
+                            *m /= sum;
+                        }
+                        level += -(top + sum.ln());
+                        s = 1.0;
+                    }
+                }
             } else {
                 let b_total: f64 = b_empty + b.mass.iter().sum::<f64>();
                 let cur_total: f64 = cur.mass.iter().sum();
-                let (conflict, _) = engine.step(cur, b, next);
+                let total = (empty + cur_total) * b_total;
+                let (conflict, kept) = engine.step(cur, b, next);
                 empty = empty * b_total + cur_total * b_empty + conflict;
+                // The masses sum to `total` (1 for mass functions): when the conflict is the
+                // larger part, total − kept is the more precise (a running sum of 17 conflicts
+                // rounded to 1.000000000000006 beside a finite level).
+                if empty > 0.5 * total {
+                    empty = (total - kept).clamp(0.0, 1.0);
+                }
             }
             std::mem::swap(cur, next);
         }
@@ -388,6 +450,14 @@ fn run_in<R>(
                 return None;
             }
             level += (-s.ln()).max(0.0);
+            // A running mass this small would overflow 1/s on the next function (a subnormal
+            // kept mass gave inf/inf): rescale the running result itself.
+            if s < RESCALE_BELOW {
+                for m in &mut cur.mass {
+                    *m /= s;
+                }
+                s = cur.mass.iter().sum();
+            }
         }
     }
     scratch.table = engine.table;

@@ -218,3 +218,72 @@ proptest! {
         }
     }
 }
+
+/// Issue 15, item 1: a kept mass that is subnormal after one step (1e-310) used to be divided by,
+/// giving inf/inf, null masses and plausibilities. The running result is rescaled instead.
+#[test]
+fn a_subnormal_running_mass_is_rescaled_not_divided_by() {
+    let a = MassFunction::new(3, vec![(s(3, &[0]), 1e-310), (s(3, &[1]), 1.0)]).unwrap();
+    let b = MassFunction::new(3, vec![(s(3, &[0]), 1.0)]).unwrap();
+    let c = dempster_all([&a, &b, &b]).unwrap();
+    let m = c.mass.expect("a combination exists");
+    assert_eq!(m.len(), 1);
+    assert_eq!(m.masses(), &[1.0]);
+    assert_eq!(m.contour(), vec![1.0, 0.0, 0.0]);
+    // K = −ln(1e-310), whatever the subnormal's lost digits (relative 1e-3).
+    assert!((c.conflict_level - 310.0 * std::f64::consts::LN_10).abs() < 1.0);
+    assert!(c.conflict_level.is_finite());
+}
+
+/// Issue 15, item 2: two masses of 1e-300 on a shared element keep 1e-600, which underflows; the
+/// step is redone in log scale instead of reporting total conflict.
+#[test]
+fn products_that_underflow_are_not_total_conflict() {
+    let a = MassFunction::new(3, vec![(s(3, &[0]), 1e-300), (s(3, &[1]), 1.0)]).unwrap();
+    let b = MassFunction::new(3, vec![(s(3, &[0]), 1e-300), (s(3, &[2]), 1.0)]).unwrap();
+    let c = dempster(&a, &b).unwrap();
+    let m = c.mass.expect("not total conflict");
+    assert_eq!(m.masses(), &[1.0]);
+    assert_eq!(m.contour(), vec![1.0, 0.0, 0.0]);
+    let expected = 600.0 * std::f64::consts::LN_10;
+    assert!(
+        (c.conflict_level - expected).abs() < 1e-9 * expected,
+        "{}",
+        c.conflict_level
+    );
+    assert_eq!(
+        conflict_level_all([&a, &b]).unwrap().to_bits(),
+        c.conflict_level.to_bits()
+    );
+    // A third function agreeing with the first after the underflow: the level only grows.
+    let third = MassFunction::new(3, vec![(s(3, &[0, 1]), 1.0)]).unwrap();
+    let k3 = dempster_all([&a, &b, &third]).unwrap().conflict_level;
+    assert!((k3 - expected).abs() < 1e-9 * expected);
+    // True total conflict stays total.
+    let z = MassFunction::new(3, vec![(s(3, &[2]), 1.0)]).unwrap();
+    let y = MassFunction::new(3, vec![(s(3, &[1]), 1.0)]).unwrap();
+    assert!(dempster(&z, &y).unwrap().is_total_conflict());
+}
+
+/// Issue 15, item 3: the conjunctive conflict mass stays in [0, 1] and equals 1 − the kept mass
+/// when the conflict is large, over many functions (17 used to give 1.000000000000006).
+#[test]
+fn conjunctive_conflict_never_exceeds_one() {
+    use crate::evidence::testutil::random_mass;
+    let mut worst: f64 = 0.0;
+    for seed in 0..300u64 {
+        let fs: Vec<MassFunction> = (0..17).map(|k| random_mass(6, 3, seed * 17 + k)).collect();
+        let m = conjunctive_all(&fs).unwrap();
+        let empty = m.empty_mass();
+        assert!((0.0..=1.0).contains(&empty), "seed {seed}: {empty}");
+        let kept: f64 = m
+            .focal()
+            .filter(|(x, _)| !x.is_empty())
+            .map(|(_, v)| v)
+            .sum();
+        if empty > 0.5 {
+            worst = worst.max((empty + kept - 1.0).abs());
+        }
+    }
+    assert!(worst < 1e-15, "{worst}");
+}
