@@ -713,3 +713,35 @@ fn a_complete_model_checks_its_parts() {
         assert!(err.to_string().contains("group errors"), "{err}");
     }
 }
+
+/// Issue 14: whether each feature's EM met its stopping rule reaches the training summary (what
+/// `evitrack train` prints as a note), and a loaded model does not claim to know.
+#[test]
+fn training_summary_reports_em_that_hit_its_iteration_cap() {
+    let poses = mesh();
+    let (names, rows) = smooth_features(&poses, 3);
+    let summary = |settings: &ModelSettings| -> Vec<Option<bool>> {
+        let frames = FeatureFrames::train(&poses, &names, &rows, settings).unwrap();
+        frames.summary().iter().map(|s| s.em_converged).collect()
+    };
+    let capped = ModelSettings {
+        hmm: evitrack::hmm::HmmSettings {
+            max_iterations: 1,
+            tolerance: 0.0,
+            ..Default::default()
+        },
+        ..ModelSettings::default()
+    };
+    assert!(summary(&capped).iter().all(|c| *c == Some(false)));
+    assert!(summary(&ModelSettings::default())
+        .iter()
+        .all(|c| *c == Some(true)));
+    let model =
+        complete(FeatureFrames::train(&poses, &names, &rows, &ModelSettings::default()).unwrap());
+    let back = EvidentialModel::from_json(&model.to_json().unwrap()).unwrap();
+    assert!(back
+        .frames()
+        .summary()
+        .iter()
+        .all(|s| s.em_converged.is_none()));
+}
