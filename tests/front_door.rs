@@ -438,3 +438,74 @@ fn every_method_trains_and_tracks_from_the_command_line() {
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("--method evidential only"));
 }
+
+/// Issue 15, item 6: the manifest's `camera.polarity` is honoured. Inverted frames declared
+/// `dark_on_bright` give the features of the original frames with the default configuration; a
+/// configuration or model of the other polarity is an error that says how to fix it.
+#[test]
+fn the_manifests_polarity_is_honoured_or_refused() {
+    use evitrack::dataset::{Dataset, Polarity};
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    simulate(
+        &path("bright"),
+        "4",
+        r#"kind = "circle", radius = 5, speed = 10, duration = 1, fps = 10"#,
+    );
+    let mut dark = Dataset::read(path("bright")).unwrap();
+    for frame in &mut dark.frames {
+        for p in frame.image.pixels_mut() {
+            p.0[0] = 255 - p.0[0];
+        }
+    }
+    dark.manifest.camera.polarity = Polarity::DarkOnBright;
+    dark.write(path("dark")).unwrap();
+    let features = |dataset: &str| -> Vec<f64> {
+        let out = ok(evitrack(&["features", &path(dataset), "--barycentre"]));
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        let mut reader = csv::Reader::from_reader(text.as_bytes());
+        let records: Vec<csv::StringRecord> = reader.records().map(|r| r.unwrap()).collect();
+        records
+            .iter()
+            .flat_map(|r| {
+                (2..10)
+                    .map(|c| r[c].parse::<f64>().unwrap())
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    let (bright, dark) = (features("bright"), features("dark"));
+    assert_eq!(bright.len(), 80);
+    for (b, d) in bright.iter().zip(&dark) {
+        assert!((b - d).abs() <= 0.01 * b.abs().max(1.0), "{b} against {d}");
+    }
+    // A configuration that says otherwise is refused, naming both and the fix.
+    std::fs::write(path("bright.toml"), "polarity = \"bright_on_dark\"\n").unwrap();
+    let bad = evitrack(&["features", &path("dark"), "--config", &path("bright.toml")]);
+    assert_eq!(bad.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&bad.stderr).to_string();
+    assert!(
+        stderr.contains("camera.polarity = dark_on_bright")
+            && stderr.contains("polarity = \"dark_on_bright\""),
+        "{stderr}"
+    );
+    // So is a model trained on bright frames, tracking dark ones.
+    simulate(&path("sample"), "1", SAMPLE_MESH);
+    ok(evitrack(&[
+        "train",
+        &path("sample"),
+        "--out",
+        &path("model.json"),
+        "--method",
+        "knn",
+    ]));
+    let bad = evitrack(&["track", &path("dark"), "--model", &path("model.json")]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("camera.polarity = dark_on_bright"));
+    ok(evitrack(&[
+        "track",
+        &path("bright"),
+        "--model",
+        &path("model.json"),
+    ]));
+}

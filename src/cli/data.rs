@@ -7,7 +7,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use super::{
-    extract_with_progress, feature_config, fresh_dir, output_sink, progress_bar, read_dataset,
+    extract_with_progress, feature_config_for, fresh_dir, output_sink, progress_bar, read_dataset,
 };
 use evitrack::dataset::Dataset;
 use evitrack::evidence;
@@ -268,7 +268,9 @@ pub fn combine(args: &CombineArgs) -> Result<ExitCode> {
 
 pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
     let dataset = read_dataset(&args.dataset)?;
-    let set = feature_config(args.config.as_deref(), args.barycentre)?.check()?;
+    let what = args.dataset.display().to_string();
+    let set =
+        feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?.check()?;
     let rows = extract_with_progress(&set, &dataset);
     let sink = output_sink(args.out.as_deref())?;
     let mut csv = csv::Writer::from_writer(sink);

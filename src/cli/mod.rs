@@ -12,7 +12,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use evitrack::dataset::Dataset;
-use evitrack::features::{FeatureConfig, FeatureRows, FeatureSet};
+use evitrack::features::{FeatureConfig, FeatureRows, FeatureSet, Polarity};
 use evitrack::scenario::ScenarioSet;
 
 /// Evidential (Dempster–Shafer) pose tracking on a simulated five-bar robot.
@@ -117,6 +117,47 @@ pub(crate) fn feature_config(path: Option<&Path>, barycentre: bool) -> Result<Fe
         }
         None if barycentre => Ok(FeatureConfig::with_barycentre()),
         None => Ok(FeatureConfig::default()),
+    }
+}
+
+/// The feature configuration for `dataset` (`what` names it in errors): the file's, whose
+/// polarity must be the one the dataset's manifest declares, or the default one with the
+/// manifest's polarity.
+pub(crate) fn feature_config_for(
+    path: Option<&Path>,
+    barycentre: bool,
+    dataset: &Dataset,
+    what: &str,
+) -> Result<FeatureConfig> {
+    let mut config = feature_config(path, barycentre)?;
+    if path.is_none() {
+        config.polarity = dataset.manifest.camera.polarity;
+    }
+    check_polarity(&config, dataset, what)?;
+    Ok(config)
+}
+
+/// Fails when the features would read `dataset`'s frames the wrong way round: its manifest's
+/// `camera.polarity` is not the configuration's.
+pub(crate) fn check_polarity(config: &FeatureConfig, dataset: &Dataset, what: &str) -> Result<()> {
+    let declared = dataset.manifest.camera.polarity;
+    if config.polarity != declared {
+        bail!(
+            "{what} declares `camera.polarity = {}` in its manifest, but the feature configuration \
+             reads frames as `{}`: set `polarity = \"{}\"` in the feature configuration (for a \
+             model, train it again on frames of that polarity)",
+            polarity_name(declared),
+            polarity_name(config.polarity),
+            polarity_name(declared)
+        );
+    }
+    Ok(())
+}
+
+fn polarity_name(p: Polarity) -> &'static str {
+    match p {
+        Polarity::BrightOnDark => "bright_on_dark",
+        Polarity::DarkOnBright => "dark_on_bright",
     }
 }
 

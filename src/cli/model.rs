@@ -6,7 +6,10 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 
-use super::{extract_with_progress, feature_config, output_sink, progress_bar, read_dataset};
+use super::{
+    check_polarity, extract_with_progress, feature_config_for, output_sink, progress_bar,
+    read_dataset,
+};
 use evitrack::estimator::{
     self, missing_penalty, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential,
     EvidentialSettings, KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
@@ -244,11 +247,11 @@ fn paper_states(feature: &str) -> Result<usize> {
 }
 
 pub fn train(args: &TrainArgs) -> Result<ExitCode> {
-    let config = feature_config(args.config.as_deref(), args.barycentre)?;
-    let set = config.check()?;
-    let names = set.names();
     let dataset = read_dataset(&args.dataset)?;
     let what = args.dataset.display().to_string();
+    let config = feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?;
+    let set = config.check()?;
+    let names = set.names();
     let sample = DatasetFeatures {
         poses: dataset.truth_positions().with_context(|| {
             format!("{what} has frames without ground-truth poses: training needs the pose of every sample")
@@ -258,6 +261,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     let validation = match &args.validation {
         Some(path) => {
             let data = read_dataset(path)?;
+            check_polarity(&config, &data, &path.display().to_string())?;
             Some(DatasetFeatures {
                 poses: data.truth_positions().with_context(|| {
                     format!(
@@ -455,6 +459,7 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         );
     }
     let dataset = read_dataset(&args.dataset)?;
+    check_polarity(&config, &dataset, &args.dataset.display().to_string())?;
     let bar = progress_bar("track");
     bar.set_length(dataset.len() as u64);
     let label = args
