@@ -177,11 +177,16 @@ impl PlausibilityRegion {
         })
     }
 
-    /// Whether pose `q` lies inside.
-    pub fn covers(&self, q: [f64; 2]) -> bool {
+    /// (q − centre)ᵀ shape (q − centre): at most 1 inside the region.
+    pub fn distance(&self, q: [f64; 2]) -> f64 {
         let d = [q[0] - self.centre[0], q[1] - self.centre[1]];
         let s = &self.shape;
-        d[0] * (s[0][0] * d[0] + s[0][1] * d[1]) + d[1] * (s[1][0] * d[0] + s[1][1] * d[1]) <= 1.0
+        d[0] * (s[0][0] * d[0] + s[0][1] * d[1]) + d[1] * (s[1][0] * d[0] + s[1][1] * d[1])
+    }
+
+    /// Whether pose `q` lies inside.
+    pub fn covers(&self, q: [f64; 2]) -> bool {
+        self.distance(q) <= 1.0
     }
 }
 

@@ -315,13 +315,9 @@ impl Continuous {
         truth: [f64; 2],
     ) -> Result<Option<f64>, EstimatorError> {
         let estimate = self.estimate(features)?;
-        Ok(estimate.region.map(|r| {
-            let d = [truth[0] - r.centre[0], truth[1] - r.centre[1]];
-            let a = r.shape;
-            self.file.region_chi2
-                * (d[0] * (a[0][0] * d[0] + a[0][1] * d[1])
-                    + d[1] * (a[1][0] * d[0] + a[1][1] * d[1]))
-        }))
+        Ok(estimate
+            .region
+            .map(|r| self.file.region_chi2 * r.distance(truth)))
     }
 
     /// The estimator of a fitted state: the same operations whether fitted or loaded.
