@@ -434,7 +434,7 @@ pub(super) fn members(mask: u32) -> impl Iterator<Item = usize> {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
-    use crate::track::{SelectionPolicy, TrackedFeature};
+    use crate::track::{Estimator, SelectionPolicy, TrackedFeature};
 
     pub(in crate::track) fn tiny_tracker(constructor: crate::evidence::Constructor) -> Tracker {
         // 6 poses on a line; three features with different partitions.
@@ -457,6 +457,42 @@ pub(super) mod tests {
             ..TrackSettings::default()
         };
         Tracker::new(model, settings.check().unwrap()).unwrap()
+    }
+
+    #[test]
+    fn a_kept_mass_of_e_minus_712_still_gives_every_estimator_its_estimate() {
+        // Only poses 4 and 5 survive, with combined weight e^-712 (subnormal): every
+        // estimator must still read them, and the level must be the exact 712.
+        let tiny = (-712.0f64).exp();
+        let lik = vec![
+            Some(vec![1.0, tiny]),
+            Some(vec![0.0, 0.0, 1.0]),
+            Some(vec![1.0, 1.0]),
+        ];
+        for constructor in [
+            crate::evidence::Constructor::Bayesian,
+            crate::evidence::Constructor::Consonant,
+        ] {
+            for (estimator, expected) in [
+                (Estimator::WeightedMean, 4.5),
+                (Estimator::Pignistic, 4.5),
+                (Estimator::Map, 4.0),
+            ] {
+                let settings = TrackSettings {
+                    constructor,
+                    estimator,
+                    ..TrackSettings::default()
+                };
+                let model = tiny_tracker(constructor).model().clone();
+                let t = Tracker::new(model, settings.check().unwrap()).unwrap();
+                let est = t.track(&lik).unwrap();
+                let what = format!("{constructor:?} {estimator:?}: {est:?}");
+                assert!(!est.flags.combination_failed, "{what}");
+                assert_eq!(est.estimate, Some([expected, 0.0]), "{what}");
+                assert_eq!(est.group, vec![0, 1, 2], "{what}");
+                assert!((est.conflict_level.unwrap() - 712.0).abs() < 1e-9, "{what}");
+            }
+        }
     }
 
     use proptest::prelude::*;
