@@ -3,7 +3,7 @@
 use std::io::Write;
 use std::process::{Command, Output, Stdio};
 
-fn evitrack(args: &[&str], stdin: &str) -> Output {
+pub(crate) fn evitrack(args: &[&str], stdin: &str) -> Output {
     let mut child = Command::new(env!("CARGO_BIN_EXE_evitrack"))
         .args(args)
         .stdin(Stdio::piped())

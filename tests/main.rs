@@ -13,5 +13,6 @@ mod hmm;
 mod model;
 mod pipeline;
 mod reference;
+mod reliability;
 mod sim;
 mod track;

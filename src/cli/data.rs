@@ -10,7 +10,8 @@ use super::{
     extract_with_progress, feature_config_for, fresh_dir, output_sink, progress_bar, read_dataset,
 };
 use evitrack::dataset::Dataset;
-use evitrack::evidence;
+use evitrack::evidence::exchange::CombineLimits;
+use evitrack::evidence::{self, EvidenceError, WorkLimit, WorkLimits};
 use evitrack::experiment::{sample_trajectory, Workbench};
 use evitrack::report::Timings;
 use evitrack::scenario::{CheckedScenario, SampleSettings, ScenarioSet};
@@ -22,6 +23,30 @@ use evitrack::sim::{self, Motion, NoiseSettings, SimSettings};
 pub struct CombineArgs {
     /// Input JSON file (`-` reads standard input).
     file: PathBuf,
+    /// Most focal sets any one function (an input, all inputs together, or a running result)
+    /// may have; beyond it `combine` stops with exit status 2.
+    #[arg(long, value_name = "N", default_value_t = WorkLimits::DEFAULT.focal_sets)]
+    max_focal_sets: usize,
+    /// Most memory, in MiB, the focal sets of any one function may take (focal sets × frame
+    /// size / 8 bytes, rounded up to 64 elements).
+    #[arg(long, value_name = "MIB", default_value_t = WorkLimits::DEFAULT.set_bytes >> 20)]
+    max_set_mib: usize,
+    /// Most elements the output may list (the frame's plausibilities plus the elements of the
+    /// result's focal sets).
+    #[arg(long, value_name = "N", default_value_t = CombineLimits::DEFAULT.output_elements)]
+    max_output_elements: usize,
+}
+
+impl CombineArgs {
+    fn limits(&self) -> CombineLimits {
+        CombineLimits {
+            work: WorkLimits {
+                focal_sets: self.max_focal_sets,
+                set_bytes: self.max_set_mib.saturating_mul(1 << 20),
+            },
+            output_elements: self.max_output_elements,
+        }
+    }
 }
 
 #[derive(Debug, Args)]
@@ -255,8 +280,21 @@ pub fn combine(args: &CombineArgs) -> Result<ExitCode> {
             std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
         (text, file.display().to_string())
     };
-    let report = evidence::exchange::combine_json(&text)
-        .with_context(|| format!("{name} is not a valid combine input"))?;
+    let report = match evidence::exchange::combine_json_within(&text, &args.limits()) {
+        Ok(report) => report,
+        Err(EvidenceError::WorkLimit { limit, max }) => {
+            let flag = match limit {
+                WorkLimit::FocalSets => format!("--max-focal-sets (now {max})"),
+                WorkLimit::SetBytes => format!("--max-set-mib (now {})", max >> 20),
+                WorkLimit::OutputElements => format!("--max-output-elements (now {max})"),
+            };
+            bail!(
+                "combining {name} would need more than {max} {limit}, the limit: \
+                 raise it with {flag} if the machine has the memory"
+            );
+        }
+        Err(e) => return Err(e).with_context(|| format!("{name} is not a valid combine input")),
+    };
     if report.is_total_conflict() {
         eprintln!(
             "warning: the mass functions are in total conflict (κ = 1): no combination exists"

@@ -22,6 +22,75 @@ pub enum Rule {
     Conjunctive,
 }
 
+/// Bounds on the work of one combination, so that a small input cannot exhaust memory (two
+/// functions of 100 focal sets on a frame of 2²⁴ elements have 10⁴ intersections of 2 MB each).
+/// Every function, the inputs and each intermediate result, is checked against both; an excess
+/// stops the combination with [`EvidenceError::WorkLimit`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WorkLimits {
+    /// Focal sets any one function may have.
+    pub focal_sets: usize,
+    /// Bytes of set storage any one function may need: focal sets × ⌈frame size / 64⌉ × 8.
+    pub set_bytes: usize,
+}
+
+impl WorkLimits {
+    /// The defaults of the library and of `evitrack combine`.
+    pub const DEFAULT: WorkLimits = WorkLimits {
+        focal_sets: 1 << 20,
+        set_bytes: 1 << 30,
+    };
+
+    /// Whether `sets` sets of `words` words each are within the limits; which one is not.
+    pub(crate) fn check(&self, sets: usize, words: usize) -> Result<(), EvidenceError> {
+        if sets > self.focal_sets {
+            return Err(EvidenceError::WorkLimit {
+                limit: WorkLimit::FocalSets,
+                max: self.focal_sets,
+            });
+        }
+        if sets.saturating_mul(words).saturating_mul(8) > self.set_bytes {
+            return Err(EvidenceError::WorkLimit {
+                limit: WorkLimit::SetBytes,
+                max: self.set_bytes,
+            });
+        }
+        Ok(())
+    }
+
+    /// Largest number of sets of `words` words each within the limits.
+    fn max_sets(&self, words: usize) -> usize {
+        self.focal_sets.min(self.set_bytes / (8 * words.max(1)))
+    }
+}
+
+impl Default for WorkLimits {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Which of the [`WorkLimits`] a combination reached.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WorkLimit {
+    /// [`WorkLimits::focal_sets`].
+    FocalSets,
+    /// [`WorkLimits::set_bytes`].
+    SetBytes,
+    /// The output size of the exchange format ([`crate::evidence::exchange::CombineLimits`]).
+    OutputElements,
+}
+
+impl std::fmt::Display for WorkLimit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            WorkLimit::FocalSets => "focal sets in one function",
+            WorkLimit::SetBytes => "bytes of focal-set storage in one function",
+            WorkLimit::OutputElements => "elements listed in the output's focal sets",
+        })
+    }
+}
+
 /// Result of Dempster's rule.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Combination {
@@ -156,21 +225,40 @@ struct Engine {
     w: usize,
     keys: Vec<u64>,
     table: Vec<u64>,
+    limits: WorkLimits,
+    /// Sets a result may hold within the limits.
+    max_sets: usize,
 }
 
+/// A step stopped because its result would exceed the [`WorkLimits`].
+struct OverLimit;
+
 impl Engine {
-    fn new(n: usize, table: Vec<u64>) -> Self {
+    fn new(n: usize, table: Vec<u64>, limits: WorkLimits) -> Self {
         let w = word_count(n);
         Engine {
             w,
             keys: (0..w as u64).map(|k| splitmix(k) | 1).collect(),
             table,
+            limits,
+            max_sets: limits.max_sets(w),
+        }
+    }
+
+    /// The limit a function of `sets` sets breaks, as an error.
+    fn over(&self, sets: usize) -> EvidenceError {
+        match self.limits.check(sets, self.w) {
+            Err(e) => e,
+            Ok(()) => EvidenceError::WorkLimit {
+                limit: WorkLimit::FocalSets,
+                max: self.limits.focal_sets,
+            },
         }
     }
 
     /// out ← merged non-empty intersections of cur × b; returns the masses of the empty and of the
     /// non-empty intersections.
-    fn step(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> (f64, f64) {
+    fn step(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> Result<(f64, f64), OverLimit> {
         match self.w {
             1 => self.step_w::<1>(cur, b, out),
             2 => self.step_w::<2>(cur, b, out),
@@ -195,8 +283,11 @@ impl Engine {
         self.table.clear();
         self.table.resize(cap, EMPTY_SLOT);
         out.clear();
-        out.mass.reserve(pairs.min(INITIAL_SLOTS));
-        out.words.reserve(pairs.min(1024) * self.w);
+        let expected = pairs.min(self.max_sets);
+        out.mass.reserve(expected.min(INITIAL_SLOTS));
+        // At most 1 MiB up front: sets of a huge frame are megabytes each.
+        out.words
+            .reserve((expected.min(1024) * self.w).min(1 << 17));
         cap - 1
     }
 
@@ -220,11 +311,18 @@ impl Engine {
         mask
     }
 
-    /// Add mass `m` to the set `x` (hash `h`): merge with an equal set already in `out`, or append.
-    /// Table entries hold the set's index in the low 32 bits and a hash tag in the high 32 bits,
-    /// so most mismatches are rejected without touching the arena.
+    /// Add mass `m` to the set `x` (hash `h`): merge with an equal set already in `out`, or append
+    /// unless `out` holds `max_sets` sets already. Table entries hold the set's index in the low
+    /// 32 bits and a hash tag in the high 32 bits, so most mismatches are rejected without
+    /// touching the arena.
     #[inline(always)]
-    fn insert(table: &mut [u64], mask: usize, out: &mut Arena, x: &[u64], h: u64, m: f64) {
+    fn insert(
+        table: &mut [u64],
+        mask: usize,
+        out: &mut Arena,
+        (x, h, m): (&[u64], u64, f64),
+        max_sets: usize,
+    ) -> Result<(), OverLimit> {
         let w = x.len();
         let hf = fold_mul(h, MIX);
         let tag = hf & 0xFFFF_FFFF_0000_0000;
@@ -232,10 +330,13 @@ impl Engine {
         loop {
             let e = table[pos];
             if e == EMPTY_SLOT {
+                if out.mass.len() >= max_sets {
+                    return Err(OverLimit);
+                }
                 table[pos] = tag | out.mass.len() as u64;
                 out.mass.push(m);
                 out.words.extend_from_slice(x);
-                return;
+                return Ok(());
             }
             if e & 0xFFFF_FFFF_0000_0000 == tag {
                 let i = (e & 0xFFFF_FFFF) as usize;
@@ -243,14 +344,19 @@ impl Engine {
                 // Word loop rather than slice equality, which would call memcmp.
                 if stored.iter().zip(x).all(|(a, b)| a == b) {
                     out.mass[i] += m;
-                    return;
+                    return Ok(());
                 }
             }
             pos = (pos + 1) & mask;
         }
     }
 
-    fn step_w<const W: usize>(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> (f64, f64) {
+    fn step_w<const W: usize>(
+        &mut self,
+        cur: &Arena,
+        b: &Arena,
+        out: &mut Arena,
+    ) -> Result<(f64, f64), OverLimit> {
         let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut keys = [0u64; W];
         keys.copy_from_slice(&self.keys[..W]);
@@ -273,13 +379,18 @@ impl Engine {
                     mask = self.grow(out);
                 }
                 kept += ma * mb;
-                Self::insert(&mut self.table, mask, out, &x, h, ma * mb);
+                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
-        (empty, kept)
+        Ok((empty, kept))
     }
 
-    fn step_dyn(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> (f64, f64) {
+    fn step_dyn(
+        &mut self,
+        cur: &Arena,
+        b: &Arena,
+        out: &mut Arena,
+    ) -> Result<(f64, f64), OverLimit> {
         let w = self.w;
         let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut empty = 0.0;
@@ -301,10 +412,10 @@ impl Engine {
                     mask = self.grow(out);
                 }
                 kept += ma * mb;
-                Self::insert(&mut self.table, mask, out, &x, h, ma * mb);
+                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
-        (empty, kept)
+        Ok((empty, kept))
     }
 }
 
@@ -314,7 +425,12 @@ impl Engine {
     /// to the largest product. Returns the natural log of that product, or `None` when no pair
     /// intersects (true total conflict).
     #[cold]
-    fn step_log(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> Option<f64> {
+    fn step_log(
+        &mut self,
+        cur: &Arena,
+        b: &Arena,
+        out: &mut Arena,
+    ) -> Result<Option<f64>, OverLimit> {
         let w = self.w;
         let pairs = || {
             cur.words
@@ -329,7 +445,7 @@ impl Engine {
         };
         let top = pairs().map(|(_, _, l)| l).fold(f64::NEG_INFINITY, f64::max);
         if !top.is_finite() {
-            return None;
+            return Ok(None);
         }
         let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut x = vec![0u64; w];
@@ -341,9 +457,10 @@ impl Engine {
             if 2 * out.len() >= mask {
                 mask = self.grow(out);
             }
-            Self::insert(&mut self.table, mask, out, &x, h, (l - top).exp());
+            let m = (l - top).exp();
+            Self::insert(&mut self.table, mask, out, (&x, h, m), self.max_sets)?;
         }
-        Some(top)
+        Ok(Some(top))
     }
 }
 
@@ -377,14 +494,18 @@ struct Outcome<'s> {
 /// Combine; in Dempster mode (`normalise`) the running result is renormalised after every step and
 /// the step's level of conflict added (Theorem 4.3), which also keeps masses from underflowing.
 /// Returns `None` in Dempster mode on total conflict, else `finish` of the outcome.
+///
+/// # Errors
+/// [`EvidenceError::WorkLimit`] when an input or a running result exceeds `limits`.
 fn run<R>(
     n: usize,
     fs: &[&MassFunction],
-    normalise: bool,
+    (normalise, limits): (bool, &WorkLimits),
     finish: impl FnOnce(Outcome<'_>) -> R,
-) -> Option<R> {
+) -> Result<Option<R>, EvidenceError> {
     let mut scratch = SCRATCH.with(|c| c.take()).unwrap_or_default();
-    let result = run_in(&mut scratch, n, fs, normalise, finish);
+    let engine = Engine::new(n, std::mem::take(&mut scratch.table), *limits);
+    let result = run_in(&mut scratch, engine, fs, normalise, finish);
     scratch.trim();
     SCRATCH.with(|c| c.set(Some(scratch)));
     result
@@ -392,13 +513,28 @@ fn run<R>(
 
 fn run_in<R>(
     scratch: &mut Scratch,
-    n: usize,
+    mut engine: Engine,
     fs: &[&MassFunction],
     normalise: bool,
     finish: impl FnOnce(Outcome<'_>) -> R,
-) -> Option<R> {
-    let mut engine = Engine::new(n, std::mem::take(&mut scratch.table));
-    let Scratch { cur, next, b, .. } = scratch;
+) -> Result<Option<R>, EvidenceError> {
+    let n = fs.first().map_or(0, |f| f.frame_size());
+    if let Some(f) = fs.iter().find(|f| f.focal().count() > engine.max_sets) {
+        let e = engine.over(f.focal().count());
+        scratch.table = engine.table;
+        return Err(e);
+    }
+    let over = |engine: Engine, scratch_table: &mut Vec<u64>| {
+        let e = engine.over(engine.max_sets + 1);
+        *scratch_table = engine.table;
+        e
+    };
+    let Scratch {
+        cur,
+        next,
+        b,
+        table: scratch_table,
+    } = scratch;
     let mut empty = 0.0;
     let mut level = 0.0;
     // In Dempster mode the running result has total mass `s` instead of 1; rather than rescale
@@ -416,11 +552,17 @@ fn run_in<R>(
                 for m in &mut b.mass {
                     *m /= s;
                 }
-                (_, s) = engine.step(cur, b, next);
+                let Ok((_, kept)) = engine.step(cur, b, next) else {
+                    return Err(over(engine, scratch_table));
+                };
+                s = kept;
                 if s <= 0.0 && next.len() > 0 {
                     // Intersections exist but their products underflowed: redo in log scale,
                     // adding the step's level here and leaving a normalised running result.
-                    if let Some(top) = engine.step_log(cur, b, next) {
+                    let Ok(logged) = engine.step_log(cur, b, next) else {
+                        return Err(over(engine, scratch_table));
+                    };
+                    if let Some(top) = logged {
                         let sum: f64 = next.mass.iter().sum();
                         for m in &mut next.mass {
                             *m /= sum;
@@ -433,7 +575,9 @@ fn run_in<R>(
                 let b_total: f64 = b_empty + b.mass.iter().sum::<f64>();
                 let cur_total: f64 = cur.mass.iter().sum();
                 let total = (empty + cur_total) * b_total;
-                let (conflict, kept) = engine.step(cur, b, next);
+                let Ok((conflict, kept)) = engine.step(cur, b, next) else {
+                    return Err(over(engine, scratch_table));
+                };
                 empty = empty * b_total + cur_total * b_empty + conflict;
                 // The masses sum to `total` (1 for mass functions): when the conflict is the
                 // larger part, total − kept is the more precise (a running sum of 17 conflicts
@@ -446,8 +590,8 @@ fn run_in<R>(
         }
         if normalise {
             if cur.len() == 0 || s <= 0.0 {
-                scratch.table = engine.table;
-                return None;
+                *scratch_table = engine.table;
+                return Ok(None);
             }
             level += (-s.ln()).max(0.0);
             // A running mass this small would overflow 1/s on the next function (a subnormal
@@ -460,19 +604,19 @@ fn run_in<R>(
             }
         }
     }
-    scratch.table = engine.table;
+    *scratch_table = engine.table;
     if normalise {
-        for m in &mut scratch.cur.mass {
+        for m in &mut cur.mass {
             *m /= s;
         }
         empty = 0.0;
     }
-    Some(finish(Outcome {
+    Ok(Some(finish(Outcome {
         n,
-        arena: &scratch.cur,
+        arena: cur,
         empty,
         level,
-    }))
+    })))
 }
 
 fn to_mass_function(out: Outcome<'_>, keep_empty: bool) -> MassFunction {
@@ -506,13 +650,26 @@ pub fn conjunctive(a: &MassFunction, b: &MassFunction) -> Result<MassFunction, E
 /// conflicting functions can underflow towards 0; use [`dempster_all`] when that matters.
 ///
 /// # Errors
-/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`].
+/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`],
+/// [`EvidenceError::WorkLimit`] beyond [`WorkLimits::DEFAULT`].
 pub fn conjunctive_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
 ) -> Result<MassFunction, EvidenceError> {
+    conjunctive_all_within(fs, &WorkLimits::DEFAULT)
+}
+
+/// [`conjunctive_all`] within the given work limits.
+///
+/// # Errors
+/// As [`conjunctive_all`], [`EvidenceError::WorkLimit`] beyond `limits`.
+pub fn conjunctive_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
+    fs: I,
+    limits: &WorkLimits,
+) -> Result<MassFunction, EvidenceError> {
     let (n, fs) = frame_of(fs)?;
     // The engine returns a core in conjunctive mode always.
-    run(n, &fs, false, |out| to_mass_function(out, true)).ok_or(EvidenceError::NothingToCombine)
+    run(n, &fs, (false, limits), |out| to_mass_function(out, true))?
+        .ok_or(EvidenceError::NothingToCombine)
 }
 
 /// Dempster's rule for two functions.
@@ -529,19 +686,31 @@ pub fn dempster(a: &MassFunction, b: &MassFunction) -> Result<Combination, Evide
 /// conflict).
 ///
 /// # Errors
-/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`].
+/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`],
+/// [`EvidenceError::WorkLimit`] beyond [`WorkLimits::DEFAULT`].
 pub fn dempster_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
 ) -> Result<Combination, EvidenceError> {
+    dempster_all_within(fs, &WorkLimits::DEFAULT)
+}
+
+/// [`dempster_all`] within the given work limits.
+///
+/// # Errors
+/// As [`dempster_all`], [`EvidenceError::WorkLimit`] beyond `limits`.
+pub fn dempster_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
+    fs: I,
+    limits: &WorkLimits,
+) -> Result<Combination, EvidenceError> {
     let (n, fs) = frame_of(fs)?;
-    let done = run(n, &fs, true, |out| {
+    let done = run(n, &fs, (true, limits), |out| {
         let level = out.level;
         Combination {
             mass: Some(to_mass_function(out, false)),
             conflict_mass: (-(-level).exp_m1()).clamp(0.0, 1.0),
             conflict_level: level,
         }
-    });
+    })?;
     Ok(match done {
         Some(c) => c,
         None => Combination {
@@ -556,12 +725,13 @@ pub fn dempster_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
 /// combined function (cheaper than [`dempster_all`] when only K is needed); +∞ on total conflict.
 ///
 /// # Errors
-/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`].
+/// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`],
+/// [`EvidenceError::WorkLimit`] beyond [`WorkLimits::DEFAULT`].
 pub fn conflict_level_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
 ) -> Result<f64, EvidenceError> {
     let (n, fs) = frame_of(fs)?;
-    Ok(run(n, &fs, true, |out| out.level).unwrap_or(f64::INFINITY))
+    Ok(run(n, &fs, (true, &WorkLimits::DEFAULT), |out| out.level)?.unwrap_or(f64::INFINITY))
 }
 
 /// Conflict mass κ between two functions, without building their combination.

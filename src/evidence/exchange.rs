@@ -10,10 +10,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::combine::{conjunctive_all, dempster_all, Rule};
+use super::combine::{conjunctive_all_within, dempster_all_within, Rule, WorkLimit, WorkLimits};
 use super::level::ConflictLevel;
 use super::mass::{MassFunction, MASS_TOLERANCE};
-use super::subset::Subset;
+use super::subset::{word_count, Subset};
 use super::EvidenceError;
 
 /// Input of `evitrack combine`.
@@ -58,6 +58,31 @@ impl CombineReport {
     /// Whether the functions were in total conflict (the CLI warns and exits with status 0).
     pub fn is_total_conflict(&self) -> bool {
         self.conflict_level == ConflictLevel::Infinite
+    }
+}
+
+/// Bounds on one `combine`: the combination's [`WorkLimits`] (each input function and the inputs
+/// together are held to them too) and the size of the output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CombineLimits {
+    /// Limits of the combination.
+    pub work: WorkLimits,
+    /// Elements the output may list: the frame (one plausibility each) plus the elements of the
+    /// result's focal sets.
+    pub output_elements: usize,
+}
+
+impl CombineLimits {
+    /// The defaults of `evitrack combine`.
+    pub const DEFAULT: CombineLimits = CombineLimits {
+        work: WorkLimits::DEFAULT,
+        output_elements: 1 << 25,
+    };
+}
+
+impl Default for CombineLimits {
+    fn default() -> Self {
+        Self::DEFAULT
     }
 }
 
@@ -130,12 +155,24 @@ fn validate(
     MassFunction::new(frame, pairs).map_err(|e| bad(index, None, e.to_string()))
 }
 
-/// Validate and combine a parsed input.
+/// Validate and combine a parsed input within [`CombineLimits::DEFAULT`].
 ///
 /// # Errors
 /// [`EvidenceError::EmptyFrame`], [`EvidenceError::FrameTooLarge`],
-/// [`EvidenceError::NothingToCombine`], [`EvidenceError::BadInput`].
+/// [`EvidenceError::NothingToCombine`], [`EvidenceError::BadInput`],
+/// [`EvidenceError::WorkLimit`].
 pub fn combine_input(input: &CombineInput) -> Result<CombineReport, EvidenceError> {
+    combine_input_within(input, &CombineLimits::DEFAULT)
+}
+
+/// Validate and combine a parsed input within `limits`.
+///
+/// # Errors
+/// As [`combine_input`].
+pub fn combine_input_within(
+    input: &CombineInput,
+    limits: &CombineLimits,
+) -> Result<CombineReport, EvidenceError> {
     if input.frame == 0 {
         return Err(EvidenceError::EmptyFrame);
     }
@@ -143,6 +180,13 @@ pub fn combine_input(input: &CombineInput) -> Result<CombineReport, EvidenceErro
     if input.mass_functions.is_empty() {
         return Err(EvidenceError::NothingToCombine);
     }
+    // Checked before any set is built: one function of the input, and all of them together.
+    let words = word_count(input.frame);
+    let sets: Vec<usize> = input.mass_functions.iter().map(|f| f.focal.len()).collect();
+    for &n in &sets {
+        limits.work.check(n, words)?;
+    }
+    limits.work.check(sets.iter().sum(), words)?;
     let fs = input
         .mass_functions
         .iter()
@@ -151,11 +195,11 @@ pub fn combine_input(input: &CombineInput) -> Result<CombineReport, EvidenceErro
         .collect::<Result<Vec<_>, _>>()?;
     let (result, conflict_mass, level) = match input.rule {
         Rule::Dempster => {
-            let c = dempster_all(&fs)?;
+            let c = dempster_all_within(&fs, &limits.work)?;
             (c.mass, c.conflict_mass, c.conflict_level)
         }
         Rule::Conjunctive => {
-            let m = conjunctive_all(&fs)?;
+            let m = conjunctive_all_within(&fs, &limits.work)?;
             let kappa = m.empty_mass();
             let kept: f64 = m
                 .focal()
@@ -178,6 +222,16 @@ pub fn combine_input(input: &CombineInput) -> Result<CombineReport, EvidenceErro
             plausibility: vec![0.0; input.frame],
         });
     };
+    let listed = m
+        .focal()
+        .map(|(s, _)| s.count())
+        .fold(input.frame, usize::saturating_add);
+    if listed > limits.output_elements {
+        return Err(EvidenceError::WorkLimit {
+            limit: WorkLimit::OutputElements,
+            max: limits.output_elements,
+        });
+    }
     let mut rows: Vec<(Vec<usize>, f64)> = m
         .focal()
         .filter(|(s, _)| !s.is_empty())
@@ -200,9 +254,20 @@ pub fn combine_input(input: &CombineInput) -> Result<CombineReport, EvidenceErro
 /// [`EvidenceError::Json`] (with line and column) for malformed JSON or unknown fields, and the
 /// errors of [`combine_input`].
 pub fn combine_json(text: &str) -> Result<CombineReport, EvidenceError> {
+    combine_json_within(text, &CombineLimits::DEFAULT)
+}
+
+/// [`combine_json`] within `limits`.
+///
+/// # Errors
+/// As [`combine_json`].
+pub fn combine_json_within(
+    text: &str,
+    limits: &CombineLimits,
+) -> Result<CombineReport, EvidenceError> {
     let input: CombineInput =
         serde_json::from_str(text).map_err(|e| EvidenceError::Json(e.to_string()))?;
-    combine_input(&input)
+    combine_input_within(&input, limits)
 }
 
 #[cfg(test)]

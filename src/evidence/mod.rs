@@ -15,8 +15,9 @@ mod refining;
 mod subset;
 
 pub use combine::{
-    conflict, conflict_level_all, conjunctive, conjunctive_all, contour_product, dempster,
-    dempster_all, level_of_conflict, Combination, Rule,
+    conflict, conflict_level_all, conjunctive, conjunctive_all, conjunctive_all_within,
+    contour_product, dempster, dempster_all, dempster_all_within, level_of_conflict, Combination,
+    Rule, WorkLimit, WorkLimits,
 };
 pub use construct::{from_likelihoods, Constructor, LikelihoodIssue, Measurement};
 pub use decision::{pignistic, pointwise_estimate, relative_plausibility};
@@ -148,6 +149,14 @@ pub enum EvidenceError {
     AllZero {
         /// What was zero.
         what: &'static str,
+    },
+    /// A combination would exceed one of its [`WorkLimits`].
+    #[error("the combination needs more than {max} {limit}, the limit")]
+    WorkLimit {
+        /// Which limit.
+        limit: WorkLimit,
+        /// Its value.
+        max: usize,
     },
     /// The combine input is not valid JSON of the expected shape.
     #[error("combine input: {0}")]
