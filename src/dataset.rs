@@ -88,6 +88,77 @@ pub struct Rect {
     pub y_max: f64,
 }
 
+/// Pose coordinates beyond ±this (mm) are refused wherever poses are read, whether a workspace is
+/// declared or not: no rig is 10 m across, and a pose of 1e300 mm only makes every error absurd.
+pub const MAX_COORDINATE_MM: f64 = 1e4;
+
+/// Joint angles beyond ±this (rad) are refused: a five-bar's motors turn less than a turn.
+pub const MAX_ANGLE_RAD: f64 = 2.0 * std::f64::consts::PI;
+
+impl Rect {
+    /// How far outside the rectangle a pose may lie and still count as in it: 5 % of its larger
+    /// side (simulated poses settle within 0.0001 mm of the 19 mm workspace's edges).
+    pub fn slack(&self) -> f64 {
+        0.05 * (self.x_max - self.x_min).max(self.y_max - self.y_min)
+    }
+
+    /// Finite, within ±[`MAX_COORDINATE_MM`], with `x_min < x_max` and `y_min < y_max`.
+    pub fn check(&self) -> Result<(), String> {
+        let corners = [self.x_min, self.x_max, self.y_min, self.y_max];
+        if !corners.iter().all(|v| v.abs() <= MAX_COORDINATE_MM)
+            || self.x_min >= self.x_max
+            || self.y_min >= self.y_max
+        {
+            return Err(format!(
+                "workspace {self:?} must have finite bounds within ±{MAX_COORDINATE_MM} mm with \
+                 x_min < x_max and y_min < y_max"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Why the position `p` (mm) cannot be a pose: not finite, beyond ±[`MAX_COORDINATE_MM`], or
+/// outside the declared `workspace` by more than its [`Rect::slack`].
+pub fn check_position(p: [f64; 2], workspace: Option<&Rect>) -> Result<(), String> {
+    if !p.iter().all(|v| v.abs() <= MAX_COORDINATE_MM) {
+        return Err(format!(
+            "position ({}, {}) mm is not finite or beyond ±{MAX_COORDINATE_MM} mm",
+            p[0], p[1]
+        ));
+    }
+    if let Some(w) = workspace {
+        let slack = w.slack();
+        if p[0] < w.x_min - slack
+            || p[0] > w.x_max + slack
+            || p[1] < w.y_min - slack
+            || p[1] > w.y_max + slack
+        {
+            return Err(format!(
+                "position ({}, {}) mm is outside the declared workspace x {}..{}, y {}..{} mm \
+                 (by more than its slack of {slack:.3} mm)",
+                p[0], p[1], w.x_min, w.x_max, w.y_min, w.y_max
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl Truth {
+    /// Why this cannot be a pose of the rig: a position that [`check_position`] refuses, or a
+    /// joint angle beyond ±[`MAX_ANGLE_RAD`].
+    pub fn check(&self, workspace: Option<&Rect>) -> Result<(), String> {
+        check_position([self.x, self.y], workspace)?;
+        if !(self.theta1.abs() <= MAX_ANGLE_RAD && self.theta2.abs() <= MAX_ANGLE_RAD) {
+            return Err(format!(
+                "joint angles ({}, {}) rad must be within ±2π",
+                self.theta1, self.theta2
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Which way round the scene is drawn: the features' own type, so a manifest's polarity is the
 /// one feature extraction takes.
 pub use crate::features::Polarity;
@@ -331,11 +402,8 @@ impl Dataset {
                 return Err(DatasetError::Invalid(format!("frame {k}: time {}", f.t)));
             }
             if let Some(t) = f.truth {
-                if ![t.x, t.y, t.theta1, t.theta2].iter().all(|v| v.is_finite()) {
-                    return Err(DatasetError::Invalid(format!(
-                        "frame {k}: non-finite truth {t:?}"
-                    )));
-                }
+                t.check(m.workspace.as_ref())
+                    .map_err(|e| DatasetError::Invalid(format!("frame {k}: {e}")))?;
             }
         }
         Ok(())
@@ -392,6 +460,16 @@ impl Dataset {
                     rows.len()
                 ),
             });
+        }
+        for row in &rows {
+            if let Some(t) = row.truth {
+                t.check(manifest.workspace.as_ref())
+                    .map_err(|message| DatasetError::Row {
+                        path: poses.clone(),
+                        line: row.line,
+                        message,
+                    })?;
+            }
         }
         let mut frames = Vec::with_capacity(rows.len());
         for row in rows {
@@ -458,6 +536,9 @@ fn read_manifest(path: &Path) -> Result<Manifest, DatasetError> {
     let m: Manifest =
         serde_json::from_value(value).map_err(|e| err(format!("malformed manifest: {e}")))?;
     m.camera.check().map_err(err)?;
+    if let Some(w) = &m.workspace {
+        w.check().map_err(err)?;
+    }
     if m.units != Units::default() {
         return Err(err(format!(
             "units {:?} are not supported: poses must be in mm, rad and s",

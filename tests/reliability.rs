@@ -2,9 +2,15 @@
 //! with exit 0 or lost output. Each gives a correct answer or exit 2 with a clear message.
 
 use crate::cli::evitrack;
+use evitrack::dataset::{Dataset, Rect};
+use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::{load, EstimatorSettings, Labelled, Method, TrainingSet};
 use evitrack::evidence::{
     dempster_all_within, EvidenceError, MassFunction, Subset, WorkLimit, WorkLimits,
 };
+use evitrack::model::Provenance;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 /// A combine input of `functions`, each a list of (focal set, mass).
 fn combine_input(frame: usize, functions: &[Vec<(Vec<usize>, f64)>]) -> String {
@@ -157,4 +163,135 @@ fn the_library_reports_which_limit_a_combination_reached() {
     );
     assert_eq!(reached(sets(4095)), None);
     assert_eq!(reached(bytes(8 * 4095)), None);
+}
+
+/// A 25-frame dataset of the default rig (workspace x −9.5..9.5, y 38..57 mm) in `dir`.
+fn small_dataset(dir: &std::path::Path) -> std::path::PathBuf {
+    let path = dir.join("data");
+    let out = evitrack(
+        &[
+            "simulate",
+            "--out",
+            path.to_str().unwrap(),
+            "--motion",
+            r#"kind = "mesh", spacing = 4.75"#,
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    path
+}
+
+/// `poses.csv` of `dataset` with field `column` of its first frame set to `value`.
+fn set_first_pose(dataset: &std::path::Path, column: usize, value: &str) {
+    let path = dataset.join("poses.csv");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let mut fields: Vec<&str> = lines[1].split(',').collect();
+    fields[column] = value;
+    lines[1] = fields.join(",");
+    std::fs::write(&path, lines.join("\n") + "\n").unwrap();
+}
+
+#[test]
+fn datasets_refuse_poses_beyond_their_declared_workspace() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = small_dataset(dir.path());
+    let original = std::fs::read(data.join("poses.csv")).unwrap();
+    // Columns: file, t, x, y, theta1, theta2. The workspace's slack is 5 % of 19 mm.
+    for (column, value, needle) in [
+        (2, "1e300", "beyond ±10000 mm"),
+        (2, "30", "outside the declared workspace x -9.5..9.5"),
+        (3, "37", "outside the declared workspace"),
+        (4, "100", "joint angles (100"),
+    ] {
+        std::fs::write(data.join("poses.csv"), &original).unwrap();
+        set_first_pose(&data, column, value);
+        let error = Dataset::read(&data).unwrap_err().to_string();
+        assert!(error.contains("poses.csv line 2"), "{error}");
+        assert!(error.contains(needle), "{needle:?} not in {error}");
+    }
+    // The CLI says so with exit 2: `train` on x = 1e300 once trained and tracked with exit 0.
+    std::fs::write(data.join("poses.csv"), &original).unwrap();
+    set_first_pose(&data, 2, "1e300");
+    let model = dir.path().join("model.json");
+    let out = evitrack(
+        &[
+            "train",
+            data.to_str().unwrap(),
+            "--out",
+            model.to_str().unwrap(),
+        ],
+        "",
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("beyond ±10000 mm"), "{stderr}");
+    assert!(!model.exists());
+    // Within the slack (0.95 mm past x_max) a pose is read.
+    set_first_pose(&data, 2, "10.4");
+    Dataset::read(&data).unwrap();
+}
+
+#[test]
+fn model_files_of_every_method_refuse_poses_beyond_their_workspace() {
+    let poses = workspace_mesh(8);
+    let mut rng = ChaCha8Rng::seed_from_u64(15);
+    let rows: Vec<_> = poses
+        .iter()
+        .map(|&q| feature_row(3, q, 0.01, &mut rng))
+        .collect();
+    let names: Vec<String> = (0..3).map(|i| format!("f{i}")).collect();
+    let mut data = TrainingSet::new(
+        &names,
+        Labelled {
+            poses: &poses,
+            rows: &rows,
+        },
+    );
+    let workspace = Rect {
+        x_min: -9.5,
+        x_max: 9.5,
+        y_min: 38.0,
+        y_max: 57.0,
+    };
+    data.provenance = Provenance::new(None, 15).with_workspace(Some(workspace));
+    let dir = tempfile::tempdir().unwrap();
+    for method in Method::ALL {
+        let estimator = method.fit(&EstimatorSettings::default(), &data).unwrap();
+        let text = estimator.to_json().unwrap();
+        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(json["provenance"]["workspace"]["x_max"], 9.5, "{method}");
+        let (pointer, field) = if json.get("sample_poses").is_some() {
+            ("/sample_poses/3", "`sample_poses[3]`")
+        } else {
+            ("/max", "`min, max[1]`")
+        };
+        let path = dir.path().join(format!("{method}.json"));
+        for (pose, needle) in [
+            (serde_json::json!([1e308, 1e308]), "beyond ±10000 mm"),
+            (
+                serde_json::json!([30.0, 47.0]),
+                "outside the declared workspace",
+            ),
+        ] {
+            let mut bad = json.clone();
+            *bad.pointer_mut(pointer).unwrap() = pose;
+            std::fs::write(&path, bad.to_string()).unwrap();
+            let error = match load(&path) {
+                Ok(_) => panic!("{method}: a pose {pointer} outside the workspace was accepted"),
+                Err(e) => e.to_string(),
+            };
+            assert!(
+                error.contains(field) && error.contains(needle),
+                "{method}: {error}"
+            );
+        }
+        std::fs::write(&path, &text).unwrap();
+        load(&path).unwrap();
+    }
 }

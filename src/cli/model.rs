@@ -280,7 +280,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         sample: sample.labelled(),
         validation: validation.as_ref().map(DatasetFeatures::labelled),
         missing_penalty: missing_penalty(&dataset),
-        provenance: Provenance::new(None, args.seed),
+        provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };
     if args.method != MethodArg::Evidential {
         let continuous = args.method == MethodArg::Continuous;

@@ -124,6 +124,9 @@ impl Centre {
                 return Err(corrupted(format!("`min` {axis} is above `max` {axis}")));
             }
         }
+        file.provenance
+            .check_poses("min, max", &[file.min, file.max])
+            .map_err(corrupted)?;
         Ok(Self::new(file))
     }
 

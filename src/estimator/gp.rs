@@ -274,6 +274,9 @@ impl Gp {
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
         file.standardisation.check(dim, "standardisation")?;
         file.output.check(2, "output")?;
+        file.provenance
+            .check_poses("sample_poses", &file.sample_poses)
+            .map_err(corrupted)?;
         let h = &file.hyperparameters;
         if h.length_scales.len() != dim {
             return Err(corrupted(format!(

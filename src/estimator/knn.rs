@@ -327,6 +327,9 @@ impl Knn {
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
         file.standardisation.check(dim, "standardisation")?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
+        file.provenance
+            .check_poses("sample_poses", &file.sample_poses)
+            .map_err(corrupted)?;
         if file.settings.k > file.sample_poses.len() {
             return Err(corrupted(format!(
                 "`settings.k` is {} but there are {} samples",

@@ -175,7 +175,8 @@ pub fn run(
             .as_ref()
             .map(|(truth, rows)| Labelled { poses: truth, rows }),
         missing_penalty: missing_penalty(sim),
-        provenance: Provenance::new(Some(s.name.clone()), master),
+        provenance: Provenance::new(Some(s.name.clone()), master)
+            .with_workspace(Some(sim.geometry.workspace)),
     };
     let mut estimators = Vec::with_capacity(s.estimators.len());
     let mut records = Vec::new();

@@ -31,6 +31,7 @@ pub use frames::{FeatureFrames, StateCountTuner, TunerError};
 pub use persist::{FORMAT_VERSION, METHOD};
 pub use settings::{ModelSettings, StateCounts, Tuning};
 
+use crate::dataset::{check_position, Rect};
 use crate::evidence::EvidenceError;
 use crate::features::FeatureConfig;
 use crate::hmm::HmmError;
@@ -183,7 +184,7 @@ pub enum ModelError {
 }
 
 /// Where a model came from: the crate that trained it and the run that asked for it.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Provenance {
     /// Version of evitrack that trained the model.
@@ -192,16 +193,40 @@ pub struct Provenance {
     pub scenario: Option<String>,
     /// The run's master seed (or the training seed given to `train`).
     pub seed: u64,
+    /// The workspace (mm) of the rig the model was trained on, when known: the model's poses are
+    /// checked against it on load.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub workspace: Option<Rect>,
 }
 
 impl Provenance {
-    /// This build's version, with the run's scenario name and seed.
+    /// This build's version, with the run's scenario name and seed; no workspace.
     pub fn new(scenario: Option<String>, seed: u64) -> Self {
         Self {
             crate_version: env!("CARGO_PKG_VERSION").to_string(),
             scenario,
             seed,
+            workspace: None,
         }
+    }
+
+    /// With the workspace of the rig the training data comes from.
+    pub fn with_workspace(self, workspace: Option<Rect>) -> Self {
+        Self { workspace, ..self }
+    }
+
+    /// Why `poses` (the model's `what`) cannot be poses of the model's rig: the first one that
+    /// [`check_position`] refuses against the declared workspace (and the workspace itself, when
+    /// it is malformed).
+    pub fn check_poses(&self, what: &str, poses: &[[f64; 2]]) -> Result<(), String> {
+        if let Some(w) = &self.workspace {
+            w.check().map_err(|e| format!("provenance: {e}"))?;
+        }
+        for (i, &p) in poses.iter().enumerate() {
+            check_position(p, self.workspace.as_ref())
+                .map_err(|e| format!("`{what}[{i}]`: {e}"))?;
+        }
+        Ok(())
     }
 }
 

@@ -126,6 +126,9 @@ impl EvidentialModel {
         let file: ModelFile =
             serde_json::from_str(text).map_err(|e| ModelError::Corrupted(e.to_string()))?;
         check_poses(&file.sample_poses).map_err(|e| ModelError::Corrupted(e.to_string()))?;
+        file.provenance
+            .check_poses("sample_poses", &file.sample_poses)
+            .map_err(ModelError::Corrupted)?;
         if file.features.is_empty() {
             return Err(ModelError::Corrupted("the model has no features".into()));
         }

@@ -459,6 +459,9 @@ impl Continuous {
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
         file.pose_standardisation.check(2, "pose_standardisation")?;
+        file.provenance
+            .check_poses("sample_poses", &file.sample_poses)
+            .map_err(corrupted)?;
         file.feature_standardisation
             .check(dim, "feature_standardisation")?;
         if file.hyperparameters.len() != dim {
