@@ -21,6 +21,7 @@
 //! `min_spacing` to an existing or already chosen sample (or coinciding with one), until the budget
 //! is full; then `measure` is called once with all new points and they are appended in that order.
 
+use crate::range::within;
 use serde::{Deserialize, Serialize};
 
 /// The neighbour radius is this factor times the median nearest-neighbour distance of the initial
@@ -100,12 +101,8 @@ impl AdaptiveSettings {
                 self.threshold
             )));
         }
-        if self.max_samples < 2 {
-            return Err(AdaptiveError::Settings(format!(
-                "max_samples = {} must be at least 2",
-                self.max_samples
-            )));
-        }
+        within(self.max_samples, 2..=100_000)
+            .map_err(|e| AdaptiveError::Settings(format!("max_samples = {e}")))?;
         if !(self.min_spacing.is_finite() && self.min_spacing >= 0.0) {
             return Err(AdaptiveError::Settings(format!(
                 "min_spacing = {} mm must be ≥ 0 and finite",

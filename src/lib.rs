@@ -61,6 +61,7 @@ pub mod faults;
 pub mod features;
 pub mod hmm;
 pub mod model;
+pub mod range;
 pub mod report;
 pub mod scenario;
 pub mod seed;

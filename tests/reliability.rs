@@ -9,6 +9,7 @@ use evitrack::evidence::{
     dempster_all_within, EvidenceError, MassFunction, Subset, WorkLimit, WorkLimits,
 };
 use evitrack::model::Provenance;
+use evitrack::scenario::{ScenarioSet, SeedList};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -293,5 +294,100 @@ fn model_files_of_every_method_refuse_poses_beyond_their_workspace() {
         }
         std::fs::write(&path, &text).unwrap();
         load(&path).unwrap();
+    }
+}
+
+/// The error of a scenario text: it must not check.
+fn scenario_error(text: &str) -> String {
+    match ScenarioSet::parse(text, "bomb.toml") {
+        Ok(_) => panic!("accepted:\n{text}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn a_grid_is_counted_before_it_is_expanded() {
+    // 10⁶ variants in 700 bytes once took 11 minutes and 2 GB to validate.
+    let keys = [
+        "sim.noise.sigma",
+        "model.seed",
+        "seed",
+        "knn.k",
+        "gp.starts",
+        "sample.keep_every",
+    ];
+    let grid: String = keys
+        .iter()
+        .map(|k| format!("\"{k}\" = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]\n"))
+        .collect();
+    let clock = std::time::Instant::now();
+    let error = scenario_error(&format!("name = \"g\"\n[sweep.grid]\n{grid}"));
+    assert!(clock.elapsed().as_secs_f64() < 5.0);
+    assert!(error.contains("1000000 variants"), "{error}");
+    assert!(error.contains("more than the 1000"), "{error}");
+    // 1000 is within: 10 × 10 × 10, each checked.
+    let grid: String = keys[..3]
+        .iter()
+        .map(|k| format!("\"{k}\" = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10]\n"))
+        .collect();
+    let set = ScenarioSet::parse(&format!("name = \"g\"\n[sweep.grid]\n{grid}"), "g.toml").unwrap();
+    assert_eq!(set.variants.len(), 1000);
+    // …but 1000 variants × 11 seeds is more runs than a sweep may ask for.
+    let error = set
+        .seeded(Some(&SeedList::Count(11)))
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("11000 runs, more than the 10000"), "{error}");
+}
+
+#[test]
+fn settings_outside_their_ranges_are_refused_before_anything_runs() {
+    for (section, setting, needle) in [
+        (
+            "sim.robot",
+            "solver_iterations = 1000000",
+            "robot.solver_iterations = 1000000 is outside its range 1..=100",
+        ),
+        (
+            "sim.robot",
+            "max_settle_steps = 1000000000",
+            "robot.max_settle_steps = 1000000000 is outside",
+        ),
+        (
+            "sim.robot",
+            "dt = 1e-9",
+            "robot.dt = 0.000000001 is outside",
+        ),
+        ("sim.noise", "sigma = 1e308", "noise.sigma"),
+        ("model.hmm", "max_iterations = 100000000", "max_iterations"),
+        ("model", "states = 1000", "must be in 1..=64"),
+        ("knn", "k = 1000000", "knn.k"),
+        ("gp", "max_fit_samples = 100000", "gp.max_fit_samples"),
+    ] {
+        let error = scenario_error(&format!("name = \"r\"\n[{section}]\n{setting}\n"));
+        assert!(
+            error.contains(needle),
+            "{setting}: {needle:?} not in {error}"
+        );
+    }
+}
+
+#[test]
+fn motions_are_checked_with_the_scenario_not_once_the_run_starts() {
+    for (motion, needle) in [
+        (
+            "kind = \"circle\"\nradius = 4.0\nspeed = 10.0\nduration = 2.0\nfps = 0.0",
+            "fps",
+        ),
+        (
+            "kind = \"points\"\npoints = [[0.0, 47.0], [30.0, 47.0]]",
+            "outside",
+        ),
+    ] {
+        let error = scenario_error(&format!("name = \"m\"\n[[tests]]\n{motion}\n"));
+        assert!(
+            error.contains("[[tests]] 0") && error.contains(needle),
+            "{error}"
+        );
     }
 }

@@ -13,6 +13,7 @@
 //! optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a frame costs O(n·D) for the mean and
 //! O(n²) for the variance.
 
+use crate::range::within;
 use std::f64::consts::LN_10;
 use std::path::Path;
 
@@ -81,11 +82,12 @@ impl GpSettings {
             }
             .into())
         };
-        if self.max_fit_samples == 0 {
-            return bad("gp.max_fit_samples", "must be at least 1");
-        }
-        if self.starts == 0 {
-            return bad("gp.starts", "must be at least 1");
+        for (field, value, range) in [
+            ("gp.max_fit_samples", self.max_fit_samples, 1..=5000),
+            ("gp.iterations", self.iterations, 0..=10_000),
+            ("gp.starts", self.starts, 1..=20),
+        ] {
+            within(value, range).map_err(|reason| ModelError::Settings { field, reason })?;
         }
         let (lo, hi) = (LOG_LENGTH.0.exp(), LOG_LENGTH.1.exp());
         if !(self.initial_length_scale >= lo && self.initial_length_scale <= hi) {

@@ -6,6 +6,7 @@
 //! on the features present, flagged in `flags.missing`); a frame with no feature present has no
 //! estimate. Ties in distance go to the lower sample index. Brute force: O(n·D) per frame.
 
+use crate::range::within;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -55,13 +56,10 @@ impl KnnSettings {
     /// # Errors
     /// [`ModelError::Settings`] naming `knn.k` when it is 0.
     pub fn check(&self) -> Result<(), EstimatorError> {
-        if self.k == 0 {
-            return Err(ModelError::Settings {
-                field: "knn.k",
-                reason: "0 neighbours cannot give an estimate: use at least 1".into(),
-            }
-            .into());
-        }
+        within(self.k, 1..=10_000).map_err(|reason| ModelError::Settings {
+            field: "knn.k",
+            reason,
+        })?;
         Ok(())
     }
 }

@@ -18,6 +18,7 @@
 mod em;
 mod init;
 
+use crate::range::within;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -143,23 +144,12 @@ impl Default for HmmSettings {
 impl HmmSettings {
     /// Checks that every setting is in range.
     pub fn check(&self) -> Result<(), HmmError> {
-        if self.restarts == 0 {
-            return Err(HmmError::Settings {
-                field: "restarts",
-                reason: "must be at least 1".into(),
-            });
-        }
-        if self.max_iterations == 0 {
-            return Err(HmmError::Settings {
-                field: "max_iterations",
-                reason: "must be at least 1".into(),
-            });
-        }
-        if self.patience == 0 {
-            return Err(HmmError::Settings {
-                field: "patience",
-                reason: "must be at least 1".into(),
-            });
+        for (field, value, range) in [
+            ("restarts", self.restarts, 1..=100),
+            ("max_iterations", self.max_iterations, 1..=100_000),
+            ("patience", self.patience, 1..=1000),
+        ] {
+            within(value, range).map_err(|reason| HmmError::Settings { field, reason })?;
         }
         if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
             return Err(HmmError::Settings {

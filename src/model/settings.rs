@@ -44,15 +44,22 @@ impl StateCounts {
                 v.clone()
             }
         };
-        if let Some(i) = counts.iter().position(|&n| n == 0) {
+        if let Some(i) = counts.iter().position(|&n| !(1..=MAX_STATES).contains(&n)) {
             return Err(ModelError::Settings {
                 field,
-                reason: format!("count for feature {i} is 0, must be at least 1"),
+                reason: format!(
+                    "count for feature {i} is {}, must be in 1..={MAX_STATES}",
+                    counts[i]
+                ),
             });
         }
         Ok(counts)
     }
 }
+
+/// Most HMM states a feature may have: a frame of discernment larger than this has more states
+/// than any sample trajectory can train.
+pub const MAX_STATES: usize = 64;
 
 /// How the state count of each feature is chosen (§5.2), each feature separately.
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -106,13 +113,13 @@ impl ModelSettings {
         })?;
         let nonzero = |c: &StateCounts, field: &'static str| {
             let ok = match c {
-                StateCounts::All(n) => *n > 0,
-                StateCounts::PerFeature(v) => v.iter().all(|&n| n > 0),
+                StateCounts::All(n) => (1..=MAX_STATES).contains(n),
+                StateCounts::PerFeature(v) => v.iter().all(|n| (1..=MAX_STATES).contains(n)),
             };
             if !ok {
                 Err(ModelError::Settings {
                     field,
-                    reason: "state counts must be at least 1".into(),
+                    reason: format!("state counts must be in 1..={MAX_STATES}"),
                 })
             } else {
                 Ok(())

@@ -269,7 +269,8 @@ impl Scenario {
                 self.name
             )));
         }
-        self.sim
+        let rig = self
+            .sim
             .check()
             .map_err(|e| invalid(format!("[sim]: {e}")))?;
         let features = self
@@ -279,6 +280,14 @@ impl Scenario {
         self.model
             .check()
             .map_err(|e| invalid(format!("[model]: {e}")))?;
+        if self.estimators.contains(&Method::Knn) {
+            self.knn
+                .check()
+                .map_err(|e| invalid(format!("[knn]: {e}")))?;
+        }
+        if self.estimators.contains(&Method::Gp) {
+            self.gp.check().map_err(|e| invalid(format!("[gp]: {e}")))?;
+        }
         if self.estimators.contains(&Method::Continuous) {
             self.continuous
                 .check()
@@ -445,6 +454,20 @@ impl Scenario {
             .enumerate()
             .map(|(k, m)| m.with_default_seed(seed::derive(self.seed, &format!("test{k}-path"))))
             .collect();
+        // Motions are planned now (fps 0, points outside the workspace), not once the run starts.
+        let motions = std::iter::once(("[sample] motion".to_string(), &scenario.sample.motion))
+            .chain(
+                scenario
+                    .validation
+                    .iter()
+                    .map(|m| ("[validation]".to_string(), m)),
+            )
+            .chain((scenario.tests.iter().enumerate()).map(|(k, m)| (format!("[[tests]] {k}"), m)));
+        for (what, motion) in motions {
+            motion
+                .plan(&rig.five_bar)
+                .map_err(|e| invalid(format!("{what}: {e}")))?;
+        }
         Ok(CheckedScenario {
             raw: self.clone(),
             scenario,

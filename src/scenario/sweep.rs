@@ -8,6 +8,13 @@ use serde::{Deserialize, Serialize};
 
 use super::{CheckedScenario, Scenario, ScenarioError};
 
+/// Most variants a scenario file may have (listed plus the grid's product), counted before the
+/// grid is expanded: a 6-key grid of 10 values each is 10⁶ variants.
+pub const MAX_VARIANTS: usize = 1000;
+
+/// Most runs (variants × seeds) one sweep may ask for.
+pub const MAX_RUNS: usize = 10_000;
+
 /// The `[sweep]` section: variants of the base scenario.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -163,6 +170,22 @@ impl ScenarioSet {
         let Some(list) = seeds.or(self.seeds.as_ref()) else {
             return Ok(self.variants.clone());
         };
+        let per_variant = match list {
+            SeedList::Count(n) => usize::try_from(*n).unwrap_or(usize::MAX),
+            SeedList::List(l) => l.len(),
+        };
+        let runs = self.variants.len().saturating_mul(per_variant);
+        if runs > MAX_RUNS {
+            return Err(ScenarioError::Variant {
+                path: self.source.clone(),
+                variant: "[sweep]".into(),
+                message: format!(
+                    "{} variants × {per_variant} seeds = {runs} runs, more than the {MAX_RUNS} a \
+                     sweep may ask for: use fewer seeds or split the sweep",
+                    self.variants.len()
+                ),
+            });
+        }
         let mut runs = Vec::new();
         for variant in &self.variants {
             for seed in list.expand(variant.seed) {
@@ -221,6 +244,24 @@ impl ScenarioSet {
                 path: source.to_string(),
                 variant: format!("grid `{path}`"),
                 message: "the list of values is empty: give at least one".into(),
+            });
+        }
+        let count = (sweep.grid.values())
+            .fold(1usize, |n, values| n.saturating_mul(values.len()))
+            .saturating_add(sweep.variant.len());
+        if count > MAX_VARIANTS {
+            return Err(ScenarioError::Variant {
+                path: source.to_string(),
+                variant: "[sweep]".into(),
+                message: format!(
+                    "{count} variants ({} listed, a grid of {}), more than the {MAX_VARIANTS} a \
+                     file may have: split the sweep into several files or shorten the grid",
+                    sweep.variant.len(),
+                    (sweep.grid.iter())
+                        .map(|(key, values)| format!("{} × `{key}`", values.len()))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
             });
         }
         let mut specs = sweep.variant.clone();

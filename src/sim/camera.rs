@@ -8,6 +8,7 @@
 //! evaluated in f64 by signed distance. A pixel farther than half its diagonal from every shape
 //! boundary is fully in or out; only the others are supersampled.
 
+use crate::range::within;
 use image::GrayImage;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -252,12 +253,9 @@ impl NoiseSettings {
 
     /// Checks the settings are usable.
     pub fn check(&self) -> Result<(), SimError> {
-        if !(self.sigma.is_finite() && self.sigma >= 0.0) {
-            return Err(SimError::Settings(format!(
-                "noise.sigma = {} must be ≥ 0 and finite",
-                self.sigma
-            )));
-        }
+        within(self.sigma, 0.0..=255.0).map_err(|e| {
+            SimError::Settings(format!("noise.sigma = {e} (grey levels of an 8-bit image)"))
+        })?;
         if let Some(b) = self.blur_sigma {
             if !(b.is_finite() && b > 0.0 && b <= 20.0) {
                 return Err(SimError::Settings(format!(

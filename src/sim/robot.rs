@@ -4,6 +4,7 @@
 //! and its link extends along its local `−x`, so both motor angles stay far from the ±π wrap of
 //! the joint angle. Ground truth is read from the simulated bodies, never from the command.
 
+use crate::range::within;
 use rapier2d::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -51,29 +52,28 @@ impl Default for RobotSettings {
 impl RobotSettings {
     /// Checks the settings are usable.
     pub fn check(&self) -> Result<(), SimError> {
-        let pos = [
-            ("dt", self.dt),
-            ("stiffness", self.stiffness),
-            ("damping", self.damping),
-            ("settle_tolerance", self.settle_tolerance),
+        // The time step also sets the cost: ≥ 1e-5 s keeps a frame's settling to ≤ 10⁵ steps.
+        let ranges = [
+            ("robot.dt", self.dt, 1e-5..=0.01, " s (1e-3 is the default)"),
+            ("robot.stiffness", self.stiffness, 1e-3..=1e12, ""),
+            ("robot.damping", self.damping, 1e-3..=1e12, ""),
+            (
+                "robot.settle_tolerance",
+                self.settle_tolerance,
+                1e-9..=1.0,
+                " mm",
+            ),
         ];
-        for (name, v) in pos {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(SimError::Settings(format!(
-                    "robot.{name} = {v} must be positive and finite"
-                )));
-            }
+        for (name, value, range, unit) in ranges {
+            within(value, range).map_err(|e| SimError::Settings(format!("{name} = {e}{unit}")))?;
         }
-        if self.dt > 0.01 {
-            return Err(SimError::Settings(format!(
-                "robot.dt = {} s is too coarse for the motors; use ≤ 0.01 s (1e-3 is the default)",
-                self.dt
-            )));
-        }
-        if self.solver_iterations == 0 || self.settle_steps == 0 || self.max_settle_steps == 0 {
-            return Err(SimError::Settings(
-                "robot.solver_iterations, settle_steps and max_settle_steps must be ≥ 1".into(),
-            ));
+        let counts = [
+            ("robot.solver_iterations", self.solver_iterations, 1..=100),
+            ("robot.settle_steps", self.settle_steps, 1..=1000),
+            ("robot.max_settle_steps", self.max_settle_steps, 1..=100_000),
+        ];
+        for (name, value, range) in counts {
+            within(value, range).map_err(|e| SimError::Settings(format!("{name} = {e}")))?;
         }
         Ok(())
     }

@@ -22,6 +22,7 @@
 mod frame;
 mod surrogate;
 
+use crate::range::within;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -104,11 +105,15 @@ impl ContinuousSettings {
                 "must lie strictly between 0 and 1",
             );
         }
-        if !(self.grid_spacing.is_finite() && self.grid_spacing > 0.0) {
-            return bad("continuous.grid_spacing", "must be a positive number of mm");
-        }
-        if self.max_fit_samples < 2 {
-            return bad("continuous.max_fit_samples", "must be at least 2");
+        within(self.grid_spacing, 0.02..=10.0).map_err(|reason| ModelError::Settings {
+            field: "continuous.grid_spacing",
+            reason: format!("{reason} mm"),
+        })?;
+        for (field, value, range) in [
+            ("continuous.max_fit_samples", self.max_fit_samples, 2..=5000),
+            ("continuous.iterations", self.iterations, 0..=10_000),
+        ] {
+            within(value, range).map_err(|reason| ModelError::Settings { field, reason })?;
         }
         if !self.conflict_threshold.is_valid() {
             return bad(
