@@ -409,7 +409,8 @@ impl Dataset {
         Ok(())
     }
 
-    /// Writes the dataset into folder `dir` (created if needed; existing files are overwritten).
+    /// Writes the dataset into folder `dir` (created if needed; existing files are overwritten),
+    /// each file atomically and the manifest last.
     pub fn write(&self, dir: impl AsRef<Path>) -> Result<(), DatasetError> {
         let dir = dir.as_ref();
         self.validate()?;
@@ -420,12 +421,14 @@ impl Dataset {
             if let Some(parent) = path.parent() {
                 fs::create_dir_all(parent).map_err(io(parent))?;
             }
+            let mut png = Vec::new();
             f.image
-                .save_with_format(&path, image::ImageFormat::Png)
+                .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
                 .map_err(|e| DatasetError::Io {
                     path: path.clone(),
                     source: std::io::Error::other(e),
                 })?;
+            crate::atomic::write(&path, &png).map_err(io(&path))?;
             // `{}` on f64 prints the shortest string that parses back to the same value.
             match f.truth {
                 Some(t) => table.push_str(&format!(
@@ -436,11 +439,12 @@ impl Dataset {
             }
         }
         let poses = dir.join(POSES_FILE);
-        fs::write(&poses, table).map_err(io(&poses))?;
+        crate::atomic::write(&poses, table.as_bytes()).map_err(io(&poses))?;
         let manifest = dir.join(MANIFEST_FILE);
         let json = serde_json::to_string_pretty(&self.manifest)
             .map_err(|e| DatasetError::Invalid(format!("manifest does not serialise: {e}")))?;
-        fs::write(&manifest, json + "\n").map_err(io(&manifest))?;
+        // Last: a folder with a manifest holds a whole dataset.
+        crate::atomic::write(&manifest, (json + "\n").as_bytes()).map_err(io(&manifest))?;
         Ok(())
     }
 

@@ -53,6 +53,7 @@
 #![deny(missing_docs)]
 
 pub mod adaptive;
+pub mod atomic;
 pub mod dataset;
 pub mod estimator;
 pub mod evidence;

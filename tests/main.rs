@@ -9,6 +9,7 @@ mod evidence;
 mod faults;
 mod features;
 mod front_door;
+mod fuzz_corpus;
 mod hmm;
 mod model;
 mod pipeline;

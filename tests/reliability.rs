@@ -391,3 +391,229 @@ fn motions_are_checked_with_the_scenario_not_once_the_run_starts() {
         );
     }
 }
+
+/// Every file under `dir`, relative, sorted.
+fn files_under(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut files = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                files.push(path.strip_prefix(dir).unwrap().to_path_buf());
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+const KILL_SCENARIO: &str = r#"
+name = "kill"
+estimators = ["evidential", "knn"]
+[sample]
+motion = { kind = "mesh", spacing = 1.0 }
+[validation]
+kind = "circle"
+radius = 4.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+[[tests]]
+kind = "circle"
+radius = 4.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+[sweep.grid]
+"sim.noise.sigma" = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+"#;
+
+#[test]
+fn a_killed_sweep_leaves_whole_files_and_resumes_to_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("kill.toml");
+    std::fs::write(&scenario, KILL_SCENARIO).unwrap();
+    let sweep = |out: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_evitrack"))
+            .args(["sweep", scenario.to_str().unwrap(), "--jobs", "2", "--out"])
+            .arg(out)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap()
+    };
+    let reference = dir.path().join("reference");
+    let clock = std::time::Instant::now();
+    assert!(sweep(&reference).wait().unwrap().success());
+    let full = clock.elapsed();
+    let expected = files_under(&reference);
+    // Two runs of the same files and seeds are byte-identical: a second full sweep is.
+    let again = dir.path().join("again");
+    assert!(sweep(&again).wait().unwrap().success());
+    assert_eq!(files_under(&again), expected);
+    for file in &expected {
+        assert_eq!(
+            std::fs::read(again.join(file)).unwrap(),
+            std::fs::read(reference.join(file)).unwrap(),
+            "{file:?}"
+        );
+    }
+    // Killed at several moments of the sweep, then run again.
+    let mut kept_some = false;
+    for share in [0.1, 0.3, 0.5, 0.7, 0.9] {
+        let out = dir.path().join(format!("killed-{share}"));
+        let mut child = sweep(&out);
+        std::thread::sleep(full.mul_f64(share));
+        let _ = child.kill();
+        child.wait().unwrap();
+        if !out.exists() {
+            continue;
+        }
+        for file in files_under(&out) {
+            let name = file.file_name().unwrap().to_string_lossy().into_owned();
+            let bytes = std::fs::read(out.join(&file)).unwrap();
+            if name.ends_with(".partial") {
+                continue;
+            }
+            if name == "sweep.json" {
+                let json: serde_json::Value = serde_json::from_slice(&bytes)
+                    .unwrap_or_else(|e| panic!("{share}: sweep.json is cut: {e}"));
+                if json["complete"] == false {
+                    assert!(!json["pending"].as_array().unwrap().is_empty());
+                }
+                continue;
+            }
+            // Every other file is whole: the very bytes a full sweep writes.
+            assert_eq!(
+                bytes,
+                std::fs::read(reference.join(&file)).unwrap(),
+                "{share}: {file:?}"
+            );
+            kept_some |= name == "results.json";
+        }
+        assert!(sweep(&out).wait().unwrap().success());
+        assert_eq!(files_under(&out), expected, "{share}: after the rerun");
+        for file in &expected {
+            assert_eq!(
+                std::fs::read(out.join(file)).unwrap(),
+                std::fs::read(reference.join(file)).unwrap(),
+                "{share}: {file:?} after the rerun"
+            );
+        }
+    }
+    assert!(
+        kept_some,
+        "no kill left a finished run to resume (full sweep {full:?})"
+    );
+}
+
+#[test]
+fn every_write_failure_of_a_sweep_is_named_and_an_unwritable_out_is_refused_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("kill.toml");
+    std::fs::write(&scenario, KILL_SCENARIO).unwrap();
+    let scenario = scenario.to_str().unwrap();
+    // A file where two run folders and the sweep's CSV should go.
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(out.join("sweep.csv")).unwrap();
+    for variant in ["kill-noise.sigma=1.0", "kill-noise.sigma=4.0"] {
+        std::fs::write(out.join(variant), "in the way").unwrap();
+    }
+    let result = evitrack(&["sweep", scenario, "--out", out.to_str().unwrap()], "");
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert_eq!(result.status.code(), Some(2), "{stderr}");
+    for needle in [
+        "failed: kill-noise.sigma=1.0",
+        "failed: kill-noise.sigma=4.0",
+        "sweep.csv",
+    ] {
+        assert!(stderr.contains(needle), "{needle:?} not in {stderr}");
+    }
+    // The other runs are written, and the sweep file says which are not.
+    assert!(out
+        .join("kill-noise.sigma=2.0")
+        .join("results.json")
+        .is_file());
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("sweep.json")).unwrap()).unwrap();
+    assert_eq!(json["complete"], false);
+    assert_eq!(
+        json["pending"],
+        serde_json::json!(["kill-noise.sigma=1.0", "kill-noise.sigma=4.0"])
+    );
+    // An --out that cannot be created fails at once, before any variant runs.
+    let blocked = out.join("kill-noise.sigma=1.0").join("sub");
+    for command in ["sweep", "run"] {
+        let clock = std::time::Instant::now();
+        let result = evitrack(&[command, scenario, "--out", blocked.to_str().unwrap()], "");
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(2), "{stderr}");
+        assert!(
+            stderr.contains("cannot create the output folder"),
+            "{stderr}"
+        );
+        assert!(
+            clock.elapsed().as_secs_f64() < 0.5,
+            "{command} computed first"
+        );
+    }
+}
+
+#[test]
+fn smaller_messages_say_what_happened() {
+    let dir = tempfile::tempdir().unwrap();
+    // `simulate --out FILE` names the file.
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let out = evitrack(&["simulate", "--out", file.to_str().unwrap()], "");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        stderr.contains(&format!("{} is a file, not a folder", file.display())),
+        "{stderr}"
+    );
+    // `train` says its cause once.
+    let data = small_dataset(dir.path());
+    let data = data.to_str().unwrap();
+    let model = dir.path().join("m.json");
+    let out = evitrack(
+        &[
+            "train",
+            data,
+            "--out",
+            model.to_str().unwrap(),
+            "--validation",
+            data,
+            "--threshold-quantile",
+            "2",
+        ],
+        "",
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(stderr.matches("is not in (0, 1]").count(), 1, "{stderr}");
+    // `track` on frames with truth but without a silhouette says no frame had an estimate,
+    // not that there is no ground truth.
+    let out = evitrack(&["train", data, "--out", model.to_str().unwrap()], "");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let frames = std::path::Path::new(data).join("frames");
+    for entry in std::fs::read_dir(&frames).unwrap() {
+        let path = entry.unwrap().path();
+        let blank = image::open(&path).unwrap().to_luma8();
+        image::GrayImage::from_pixel(blank.width(), blank.height(), image::Luma([30]))
+            .save(&path)
+            .unwrap();
+    }
+    let out = evitrack(&["track", "--model", model.to_str().unwrap(), data], "");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("none with an estimate"), "{stderr}");
+    assert!(!stderr.contains("no ground truth"), "{stderr}");
+}

@@ -7,7 +7,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use super::{
-    extract_with_progress, feature_config_for, fresh_dir, output_sink, progress_bar, read_dataset,
+    ensure_output_writable, ensure_writable, extract_with_progress, feature_config_for, fresh_dir,
+    progress_bar, read_dataset, write_output,
 };
 use evitrack::dataset::Dataset;
 use evitrack::evidence::exchange::CombineLimits;
@@ -216,6 +217,7 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
 
 pub fn simulate(args: &SimulateArgs) -> Result<ExitCode> {
     fresh_dir(&args.out)?;
+    ensure_writable(&args.out)?;
     let dataset = match (&args.scenario, &args.motion) {
         (Some(path), _) => {
             let scenario = scenario_variant(path, args.variant.as_deref())?;
@@ -256,8 +258,17 @@ pub fn simulate(args: &SimulateArgs) -> Result<ExitCode> {
 
 pub fn render(args: &RenderArgs) -> Result<ExitCode> {
     let image = sim::render_pose(&args.sim.settings(), args.x, args.y, args.sim.seed)?;
+    let format = image::ImageFormat::from_path(&args.out).with_context(|| {
+        format!(
+            "{}: name the image with an extension (`.png`)",
+            args.out.display()
+        )
+    })?;
+    let mut bytes = Vec::new();
     image
-        .save(&args.out)
+        .write_to(&mut std::io::Cursor::new(&mut bytes), format)
+        .with_context(|| format!("encoding {}", args.out.display()))?;
+    evitrack::atomic::write(&args.out, &bytes)
         .with_context(|| format!("writing {}", args.out.display()))?;
     eprintln!(
         "rendered ({}, {}) mm to {} ({}×{} px)",
@@ -305,13 +316,13 @@ pub fn combine(args: &CombineArgs) -> Result<ExitCode> {
 }
 
 pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
+    ensure_output_writable(args.out.as_deref())?;
     let dataset = read_dataset(&args.dataset)?;
     let what = args.dataset.display().to_string();
     let set =
         feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?.check()?;
     let rows = extract_with_progress(&set, &dataset);
-    let sink = output_sink(args.out.as_deref())?;
-    let mut csv = csv::Writer::from_writer(sink);
+    let mut csv = csv::Writer::from_writer(Vec::new());
     let with_truth = dataset.frames.iter().all(|f| f.truth.is_some());
     let mut header = vec!["file".to_string(), "t".to_string()];
     header.extend(set.names());
@@ -331,7 +342,8 @@ pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
         }
         csv.write_record(&record)?;
     }
-    csv.flush()?;
+    let bytes = csv.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+    write_output(args.out.as_deref(), &bytes)?;
     let missing = rows.iter().flatten().filter(|v| v.is_none()).count();
     eprintln!(
         "{} frames × {} features{}",

@@ -3,6 +3,8 @@
 mod data;
 mod model;
 mod runs;
+mod sweep;
+mod tables;
 
 use std::path::Path;
 use std::process::ExitCode;
@@ -30,9 +32,9 @@ enum Command {
     Run(runs::RunArgs),
     /// Run every variant of one or more scenario files (in parallel), print one table, write
     /// CSV/JSON and plots; `--check` fails when a variant misses its expectations.
-    Sweep(runs::SweepArgs),
+    Sweep(sweep::SweepArgs),
     /// Merge the JSON results of sweep shards (`sweep --shard i/n`) into one table and report.
-    Merge(runs::MergeArgs),
+    Merge(sweep::MergeArgs),
     /// Combine belief functions given as JSON and print the result as JSON on stdout.
     ///
     /// Input: {"frame": N, "rule": "dempster"|"conjunctive", "mass_functions":
@@ -60,18 +62,34 @@ pub fn main() -> ExitCode {
     match dispatch(cli.command) {
         Ok(code) => code,
         Err(error) => {
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", error_text(&error));
             ExitCode::from(2)
         }
     }
+}
+
+/// The error and its causes joined by `: `, leaving out a cause whose text the message before
+/// it already holds (library errors name their cause in their own message).
+fn error_text(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&cause);
+        }
+    }
+    text
 }
 
 fn dispatch(command: Command) -> Result<ExitCode> {
     match command {
         Command::Combine(args) => data::combine(&args),
         Command::Run(args) => runs::run(&args),
-        Command::Sweep(args) => runs::sweep(&args),
-        Command::Merge(args) => runs::merge(&args),
+        Command::Sweep(args) => sweep::sweep(&args),
+        Command::Merge(args) => sweep::merge(&args),
         Command::Simulate(args) => data::simulate(&args),
         Command::Render(args) => data::render(&args),
         Command::Features(args) => data::features(&args),
@@ -94,7 +112,14 @@ pub(crate) fn progress_bar(label: &str) -> ProgressBar {
 
 /// Refuses to overwrite a folder that already holds files.
 pub(crate) fn fresh_dir(dir: &Path) -> Result<()> {
-    if dir.exists() && std::fs::read_dir(dir)?.next().is_some() {
+    if dir.exists() && !dir.is_dir() {
+        bail!(
+            "{} is a file, not a folder: choose another --out",
+            dir.display()
+        );
+    }
+    let listing = || std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()));
+    if dir.exists() && listing()?.next().is_some() {
         bail!(
             "{} exists and is not empty: choose another --out or remove it",
             dir.display()
@@ -178,13 +203,28 @@ pub(crate) fn extract_with_progress(set: &FeatureSet, dataset: &Dataset) -> Feat
 }
 
 /// A buffered writer to the file, or to standard output when there is none.
-pub(crate) fn output_sink(path: Option<&Path>) -> Result<Box<dyn std::io::Write>> {
-    Ok(match path {
-        Some(path) => Box::new(std::io::BufWriter::new(
-            std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-        )),
-        None => Box::new(std::io::stdout().lock()),
-    })
+/// Writes a command's output to `path` atomically, or to standard output without one.
+pub(crate) fn write_output(path: Option<&Path>, bytes: &[u8]) -> Result<()> {
+    match path {
+        Some(path) => evitrack::atomic::write(path, bytes)
+            .with_context(|| format!("writing {}", path.display())),
+        None => {
+            use std::io::Write;
+            let mut out = std::io::stdout().lock();
+            out.write_all(bytes)
+                .and_then(|()| out.flush())
+                .context("writing standard output")
+        }
+    }
+}
+
+/// Proves before any work that the folder of the output file `path` (when given) is writable.
+pub(crate) fn ensure_output_writable(path: Option<&Path>) -> Result<()> {
+    match path.map(|p| p.parent().unwrap_or(Path::new(""))) {
+        Some(parent) if parent.as_os_str().is_empty() => ensure_writable(Path::new(".")),
+        Some(parent) => ensure_writable(parent),
+        None => Ok(()),
+    }
 }
 
 pub(crate) fn load_scenarios(path: Option<&Path>) -> Result<ScenarioSet> {
@@ -198,4 +238,24 @@ pub(crate) fn fmt_mm(value: Option<f64>) -> String {
     value
         .map(|v| format!("{v:.4}"))
         .unwrap_or_else(|| "—".into())
+}
+
+/// Creates `dir` and proves it writable before any work, so that a run does not compute for
+/// minutes and then find `--out` read-only.
+pub(crate) fn ensure_writable(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| {
+        format!(
+            "cannot create the output folder {}: choose another --out",
+            dir.display()
+        )
+    })?;
+    let probe = dir.join(".evitrack-write-probe");
+    evitrack::atomic::write(&probe, b"").with_context(|| {
+        format!(
+            "cannot write to the output folder {}: choose another --out",
+            dir.display()
+        )
+    })?;
+    std::fs::remove_file(&probe).with_context(|| format!("removing {}", probe.display()))?;
+    Ok(())
 }

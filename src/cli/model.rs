@@ -7,8 +7,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use super::{
-    check_polarity, extract_with_progress, feature_config_for, output_sink, progress_bar,
-    read_dataset,
+    check_polarity, ensure_output_writable, extract_with_progress, feature_config_for,
+    progress_bar, read_dataset, write_output,
 };
 use evitrack::estimator::{
     self, missing_penalty, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential,
@@ -247,6 +247,7 @@ fn paper_states(feature: &str) -> Result<usize> {
 }
 
 pub fn train(args: &TrainArgs) -> Result<ExitCode> {
+    ensure_output_writable(Some(&args.out))?;
     let dataset = read_dataset(&args.dataset)?;
     let what = args.dataset.display().to_string();
     let config = feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?;
@@ -325,7 +326,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
             ..EstimatorSettings::default()
         };
         let estimator = args.method.method().fit(&settings, &training)?;
-        std::fs::write(&args.out, estimator.to_json()?)
+        evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
             .with_context(|| format!("writing {}", args.out.display()))?;
         eprintln!(
             "trained `{}` on {} sample poses; model written to {}",
@@ -367,7 +368,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
             .map_or(ThresholdRule::ErrorWeighted, ThresholdRule::Quantile),
     };
     let estimator = Evidential::fit(&settings, &training)?;
-    std::fs::write(&args.out, estimator.to_json()?)
+    evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
         .with_context(|| format!("writing {}", args.out.display()))?;
     let mut table = Table::new([
         "feature",
@@ -427,6 +428,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
 }
 
 pub fn track(args: &TrackArgs) -> Result<ExitCode> {
+    ensure_output_writable(args.out.as_deref())?;
     let loaded = estimator::load(&args.model)
         .with_context(|| format!("loading the model {}", args.model.display()))?;
     let estimator: Box<dyn PoseEstimator> = if args.track.given() {
@@ -483,8 +485,9 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let sink = output_sink(args.out.as_deref())?;
-    write_frames_csv(sink, &records, &names)?;
+    let mut csv = Vec::new();
+    write_frames_csv(&mut csv, &records, &names)?;
+    write_output(args.out.as_deref(), &csv)?;
     let errors: Vec<f64> = records.iter().filter_map(|r| r.error).collect();
     let flagged = records.iter().filter(|r| !r.flags.is_empty()).count();
     let without = records.iter().filter(|r| r.estimate.is_none()).count();
@@ -492,6 +495,10 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         Some(stats) => eprintln!(
             "{} frames: error mean {:.4} mm, median {:.4}, RMS {:.4}, max {:.4}; {} flagged, {} without estimate",
             dataset.len(), stats.mean, stats.median, stats.rms, stats.max, flagged, without
+        ),
+        None if records.iter().any(|r| r.truth.is_some()) => eprintln!(
+            "{} frames tracked ({} flagged), none with an estimate, so no errors",
+            dataset.len(), flagged
         ),
         None => eprintln!(
             "{} frames tracked ({} flagged, {} without estimate); no ground truth, so no errors",

@@ -1,5 +1,6 @@
 //! Unit tests of `combine.rs`.
 use super::*;
+use crate::evidence::Subset;
 
 fn s(n: usize, v: &[usize]) -> Subset {
     Subset::from_indices(n, v.iter().copied()).unwrap()

@@ -8,6 +8,7 @@
 mod combine;
 mod construct;
 mod decision;
+mod engine;
 pub mod exchange;
 mod level;
 mod mass;

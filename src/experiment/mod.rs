@@ -24,7 +24,7 @@ use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
 use crate::model::Provenance;
 use crate::report::{
-    ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, RunSummary, Timings,
+    ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, MethodTimings, RunSummary, Timings,
 };
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
@@ -56,6 +56,9 @@ pub enum ExperimentError {
     /// A dataset has no ground truth where the run needs it.
     #[error("{0} has no ground truth; simulated datasets always do")]
     NoTruth(String),
+    /// The scenario has no TOML form to keep beside its results.
+    #[error(transparent)]
+    Scenario(#[from] crate::scenario::ScenarioError),
     /// The variant was not run (a worker thread stopped early).
     #[error("the variant was not run")]
     NotRun,
@@ -77,6 +80,10 @@ pub struct RunOutput {
     pub samples: Vec<[f64; 2]>,
     /// For each sample pose, the adaptive round that added it (0: the initial trajectory).
     pub sample_rounds: Vec<usize>,
+    /// Wall times (not in the summary, so that the same scenario and seed give the same one).
+    pub timings: Timings,
+    /// The scenario as TOML ([`CheckedScenario::to_toml`]).
+    pub scenario_toml: String,
 }
 
 /// The penalty of a frame without an estimate: the workspace diagonal, the largest error an
@@ -225,9 +232,12 @@ pub fn run(
             method.name(),
             &method_records,
             per_motion,
+        ));
+        timings.methods.push(MethodTimings {
+            method: method.name().to_string(),
             fit_seconds,
             track_seconds,
-        ));
+        });
         records.extend(method_records);
         estimators.push(estimator);
     }
@@ -247,7 +257,6 @@ pub fn run(
         methods,
         paper_error: s.paper_error,
         expect: s.expect.clone(),
-        timings,
     };
     Ok(RunOutput {
         summary,
@@ -255,6 +264,8 @@ pub fn run(
         estimators,
         samples: sample.poses,
         sample_rounds: sample.rounds,
+        timings,
+        scenario_toml: scenario.to_toml()?,
     })
 }
 
@@ -301,9 +312,29 @@ pub fn run_all(
     bench: &Workbench,
     progress: &(dyn Fn(usize, &str, usize, usize) + Sync),
 ) -> Vec<Result<RunOutput, ExperimentError>> {
-    let next = std::sync::atomic::AtomicUsize::new(0);
     let results: Mutex<Vec<Option<Result<RunOutput, ExperimentError>>>> =
         Mutex::new((0..scenarios.len()).map(|_| None).collect());
+    run_each(scenarios, jobs, bench, progress, &|i, result| {
+        results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(result);
+    });
+    results
+        .into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .map(|r| r.unwrap_or(Err(ExperimentError::NotRun)))
+        .collect()
+}
+
+/// [`run_all`] handing each result to `finished(variant, result)` as soon as it is ready (on the
+/// thread that ran it), so that a sweep can write each run's files before the others finish.
+pub fn run_each(
+    scenarios: &[CheckedScenario],
+    jobs: usize,
+    bench: &Workbench,
+    progress: &(dyn Fn(usize, &str, usize, usize) + Sync),
+    finished: &(dyn Fn(usize, Result<RunOutput, ExperimentError>) + Sync),
+) {
+    let next = std::sync::atomic::AtomicUsize::new(0);
     std::thread::scope(|scope| {
         for _ in 0..jobs.clamp(1, scenarios.len().max(1)) {
             scope.spawn(|| loop {
@@ -314,16 +345,10 @@ pub fn run_all(
                 let result = run(scenario, bench, &mut |stage, done, total| {
                     progress(i, stage, done, total)
                 });
-                results.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(result);
+                finished(i, result);
             });
         }
     });
-    results
-        .into_inner()
-        .unwrap_or_else(|e| e.into_inner())
-        .into_iter()
-        .map(|r| r.unwrap_or(Err(ExperimentError::NotRun)))
-        .collect()
 }
 
 #[cfg(test)]

@@ -29,7 +29,7 @@ mod settings;
 pub use feature::{FeatureModel, FeatureSummary};
 pub use frames::{FeatureFrames, StateCountTuner, TunerError};
 pub use persist::{FORMAT_VERSION, METHOD};
-pub use settings::{ModelSettings, StateCounts, Tuning};
+pub use settings::{ModelSettings, StateCounts, Tuning, MAX_STATES};
 
 use crate::dataset::{check_position, Rect};
 use crate::evidence::EvidenceError;

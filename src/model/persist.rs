@@ -158,7 +158,7 @@ impl EvidentialModel {
     /// Writes the model to `path` as versioned JSON.
     pub fn save(&self, path: impl AsRef<Path>) -> Result<(), ModelError> {
         let path = path.as_ref();
-        std::fs::write(path, self.to_json()?).map_err(|source| ModelError::Io {
+        crate::atomic::write(path, self.to_json()?.as_bytes()).map_err(|source| ModelError::Io {
             path: path.to_path_buf(),
             source,
         })

@@ -16,51 +16,61 @@ fn write_error(
     }
 }
 
-/// Writes a run's outputs into `dir`: `results.json`, `frames.csv` (one row per frame and
-/// method), `samples.csv` (the sample poses and the adaptive round that added each), one
-/// self-contained model file per method that `evitrack track` reads (`model.json` for the
-/// evidential tracker, `model-<method>.json` for the others) and one `track-<motion>.png` per test
-/// motion and method (true against estimated positions, like the paper's Figure 2; the other
-/// methods' plots end in `-<method>`). Returns the files written.
-pub fn write_run(dir: &Path, output: &RunOutput) -> Result<Vec<PathBuf>, ReportError> {
+/// The file of a run folder whose presence says the run finished: written last.
+pub const RESULTS_FILE: &str = "results.json";
+
+/// The scenario a run folder's results belong to ([`crate::scenario::CheckedScenario::to_toml`]).
+pub const SCENARIO_FILE: &str = "scenario.toml";
+
+/// Writes a run's outputs into `dir`, each file atomically: `scenario.toml` (the scenario as run),
+/// `frames.csv` (one row per frame and method), `samples.csv` (the sample poses and the adaptive
+/// round that added each), one self-contained model file per method that `evitrack track` reads
+/// (`model.json` for the evidential tracker, `model-<method>.json` for the others), one
+/// `track-<motion>.png` per test motion and method (true against estimated positions, like the
+/// paper's Figure 2; the other methods' plots end in `-<method>`), `timings.json` when `timings`
+/// is set (wall times differ between runs, everything else is byte-identical for a scenario and
+/// seed), and last `results.json`, so that a folder with it holds a finished run. Returns the
+/// files written.
+pub fn write_run(
+    dir: &Path,
+    output: &RunOutput,
+    timings: bool,
+) -> Result<Vec<PathBuf>, ReportError> {
     std::fs::create_dir_all(dir).map_err(|e| write_error(dir, e))?;
     let mut written = Vec::new();
-    let results = dir.join("results.json");
-    let json =
-        serde_json::to_string_pretty(&output.summary).map_err(|e| write_error(&results, e))?;
-    std::fs::write(&results, json + "\n").map_err(|e| write_error(&results, e))?;
-    written.push(results);
+    let mut put = |name: String, bytes: &[u8]| -> Result<(), ReportError> {
+        let path = dir.join(name);
+        crate::atomic::write(&path, bytes).map_err(|e| write_error(&path, e))?;
+        written.push(path);
+        Ok(())
+    };
+    put(SCENARIO_FILE.into(), output.scenario_toml.as_bytes())?;
 
-    let frames = dir.join("frames.csv");
-    let file = std::fs::File::create(&frames).map_err(|e| write_error(&frames, e))?;
-    write_frames_csv(
-        std::io::BufWriter::new(file),
-        &output.records,
-        &output.summary.features,
-    )
-    .map_err(|e| write_error(&frames, e))?;
-    written.push(frames);
+    let mut frames = Vec::new();
+    write_frames_csv(&mut frames, &output.records, &output.summary.features)
+        .map_err(|e| write_error(&dir.join("frames.csv"), e))?;
+    put("frames.csv".into(), &frames)?;
 
-    let samples = dir.join("samples.csv");
-    let mut csv = csv::Writer::from_path(&samples).map_err(|e| write_error(&samples, e))?;
-    csv.write_record(["x", "y", "added_in_round"])
-        .map_err(|e| write_error(&samples, e))?;
+    let mut samples = String::from("x,y,added_in_round\n");
     for (pose, round) in output.samples.iter().zip(&output.sample_rounds) {
-        csv.write_record([pose[0].to_string(), pose[1].to_string(), round.to_string()])
-            .map_err(|e| write_error(&samples, e))?;
+        samples.push_str(&format!("{},{},{round}\n", pose[0], pose[1]));
     }
-    csv.flush().map_err(|e| write_error(&samples, e))?;
-    written.push(samples);
+    put("samples.csv".into(), samples.as_bytes())?;
 
     for estimator in &output.estimators {
-        let method = estimator.method();
-        let model = match method {
-            "evidential" => dir.join("model.json"),
-            other => dir.join(format!("model-{other}.json")),
+        let name = match estimator.method() {
+            "evidential" => "model.json".to_string(),
+            other => format!("model-{other}.json"),
         };
-        let text = estimator.to_json().map_err(|e| write_error(&model, e))?;
-        std::fs::write(&model, text).map_err(|e| write_error(&model, e))?;
-        written.push(model);
+        let text = estimator
+            .to_json()
+            .map_err(|e| write_error(&dir.join(&name), e))?;
+        put(name, text.as_bytes())?;
+    }
+    if timings {
+        let json = serde_json::to_string_pretty(&output.timings)
+            .map_err(|e| write_error(&dir.join("timings.json"), e))?;
+        put("timings.json".into(), (json + "\n").as_bytes())?;
     }
 
     for summary in &output.summary.methods {
@@ -92,5 +102,11 @@ pub fn write_run(dir: &Path, output: &RunOutput) -> Result<Vec<PathBuf>, ReportE
             written.push(file);
         }
     }
+    let results = dir.join(RESULTS_FILE);
+    let json =
+        serde_json::to_string_pretty(&output.summary).map_err(|e| write_error(&results, e))?;
+    crate::atomic::write(&results, (json + "\n").as_bytes())
+        .map_err(|e| write_error(&results, e))?;
+    written.push(results);
     Ok(written)
 }

@@ -7,11 +7,11 @@ mod records;
 mod seeds;
 mod table;
 
-pub use files::write_run;
+pub use files::{write_run, RESULTS_FILE, SCENARIO_FILE};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
     detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
-    RegionSummary, RunSummary, Timings,
+    MethodTimings, RegionSummary, RunSummary, Timings,
 };
 pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
 pub use table::Table;

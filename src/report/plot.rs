@@ -33,11 +33,28 @@ fn plot_error(path: &Path, error: impl std::fmt::Display) -> ReportError {
 type Root<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 type Chart<'a> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
-/// A white canvas for `path`.
-fn canvas<'a>(path: &'a Path) -> Result<Root<'a>, ReportError> {
-    let root = BitMapBackend::new(path, SIZE).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
-    Ok(root)
+/// Draws on a white in-memory canvas with `paint`, then writes the PNG to `path` atomically (a
+/// kill leaves the old plot or none, never half a file).
+fn draw(
+    path: &Path,
+    paint: impl FnOnce(&Root<'_>) -> Result<(), ReportError>,
+) -> Result<(), ReportError> {
+    let mut pixels = vec![0u8; SIZE.0 as usize * SIZE.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, SIZE).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| plot_error(path, e))?;
+        paint(&root)?;
+    }
+    let image = image::RgbImage::from_raw(SIZE.0, SIZE.1, pixels)
+        .ok_or_else(|| plot_error(path, "the canvas has the wrong size"))?;
+    let mut png = Vec::new();
+    image
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| plot_error(path, e))?;
+    crate::atomic::write(path, &png).map_err(|e| ReportError::Write {
+        path: path.display().to_string(),
+        source: e.into(),
+    })
 }
 
 /// Axes over the given ranges with a title, in the common style.
@@ -110,47 +127,48 @@ pub fn plot_trajectory(
             what: "no finite positions".into(),
         });
     };
-    let root = canvas(path)?;
-    let mut chart = axes(&root, path, title, x_range, y_range)?;
-    chart
-        .configure_mesh()
-        .x_desc("x (mm)")
-        .y_desc("y (mm)")
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 17))
-        .draw()
-        .map_err(|e| plot_error(path, e))?;
-    let light = RGBColor(200, 200, 230);
-    let grey = RGBColor(150, 150, 150);
-    if let Some(samples) = samples {
+    draw(path, |root| {
+        let mut chart = axes(root, path, title, x_range, y_range)?;
+        chart
+            .configure_mesh()
+            .x_desc("x (mm)")
+            .y_desc("y (mm)")
+            .label_style((FONT, 15))
+            .axis_desc_style((FONT, 17))
+            .draw()
+            .map_err(|e| plot_error(path, e))?;
+        let light = RGBColor(200, 200, 230);
+        let grey = RGBColor(150, 150, 150);
+        if let Some(samples) = samples {
+            chart
+                .draw_series(
+                    samples
+                        .iter()
+                        .map(|p| Cross::new((p[0], p[1]), 3, light.stroke_width(1))),
+                )
+                .map_err(|e| plot_error(path, e))?
+                .label("sample poses")
+                .legend(move |(x, y)| Cross::new((x + 10, y), 3, light.stroke_width(1)));
+        }
+        chart
+            .draw_series(LineSeries::new(
+                truth.iter().map(|p| (p[0], p[1])),
+                grey.stroke_width(2),
+            ))
+            .map_err(|e| plot_error(path, e))?
+            .label("true position")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], grey.stroke_width(2)));
         chart
             .draw_series(
-                samples
+                estimated
                     .iter()
-                    .map(|p| Cross::new((p[0], p[1]), 3, light.stroke_width(1))),
+                    .map(|p| Circle::new((p[0], p[1]), 2, BLACK.filled())),
             )
             .map_err(|e| plot_error(path, e))?
-            .label("sample poses")
-            .legend(move |(x, y)| Cross::new((x + 10, y), 3, light.stroke_width(1)));
-    }
-    chart
-        .draw_series(LineSeries::new(
-            truth.iter().map(|p| (p[0], p[1])),
-            grey.stroke_width(2),
-        ))
-        .map_err(|e| plot_error(path, e))?
-        .label("true position")
-        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], grey.stroke_width(2)));
-    chart
-        .draw_series(
-            estimated
-                .iter()
-                .map(|p| Circle::new((p[0], p[1]), 2, BLACK.filled())),
-        )
-        .map_err(|e| plot_error(path, e))?
-        .label("estimate")
-        .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
-    finish(&root, chart, path)
+            .label("estimate")
+            .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
+        finish(root, chart, path)
+    })
 }
 
 /// A named line of (x, y) points for [`plot_series`].
@@ -181,35 +199,38 @@ pub fn plot_series(
             what: "no finite points".into(),
         });
     };
-    let root = canvas(path)?;
-    let mut chart = axes(&root, path, title, x_range, y_range)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_label)
-        .y_desc(y_label)
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 17))
-        .draw()
-        .map_err(|e| plot_error(path, e))?;
-    for (i, line) in series.iter().enumerate() {
-        let colour = Palette99::pick(i).to_rgba();
+    draw(path, |root| {
+        let mut chart = axes(root, path, title, x_range, y_range)?;
         chart
-            .draw_series(LineSeries::new(
-                line.points.iter().copied(),
-                colour.stroke_width(2),
-            ))
-            .map_err(|e| plot_error(path, e))?
-            .label(line.name.clone())
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
-        chart
-            .draw_series(
-                line.points
-                    .iter()
-                    .map(|&p| Circle::new(p, 4, colour.filled())),
-            )
+            .configure_mesh()
+            .x_desc(x_label)
+            .y_desc(y_label)
+            .label_style((FONT, 15))
+            .axis_desc_style((FONT, 17))
+            .draw()
             .map_err(|e| plot_error(path, e))?;
-    }
-    finish(&root, chart, path)
+        for (i, line) in series.iter().enumerate() {
+            let colour = Palette99::pick(i).to_rgba();
+            chart
+                .draw_series(LineSeries::new(
+                    line.points.iter().copied(),
+                    colour.stroke_width(2),
+                ))
+                .map_err(|e| plot_error(path, e))?
+                .label(line.name.clone())
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2))
+                });
+            chart
+                .draw_series(
+                    line.points
+                        .iter()
+                        .map(|&p| Circle::new(p, 4, colour.filled())),
+                )
+                .map_err(|e| plot_error(path, e))?;
+        }
+        finish(root, chart, path)
+    })
 }
 
 /// One method's bars: a value per variant (`None` where it has none).
@@ -264,71 +285,74 @@ pub fn plot_errors_by_variant(
     // Bars rise from half a decade below the smallest value; the axis is in log10 units.
     let floor = low.log10().floor() - 0.5;
     let top = high.log10().ceil().max(floor + 1.0) + 0.2;
-    let root = canvas(path)?;
-    let n = labels.len();
-    let mut chart = axes(&root, path, title, (-0.5, n as f64 - 0.5), (floor, top))?;
-    let label_of = |x: &f64| {
-        let i = x.round();
-        if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
-            labels[i as usize].clone()
-        } else {
-            String::new()
-        }
-    };
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(n.max(2) * 2 + 1)
-        .x_label_formatter(&label_of)
-        // Label whole decades only: 0.01, 0.1, 1, 10.
-        .y_label_formatter(&|v: &f64| {
-            if (v - v.round()).abs() < 1e-6 {
-                let decade = v.round() as i32;
-                format!("{}", 10f64.powi(decade))
+    draw(path, |root| {
+        let n = labels.len();
+        let mut chart = axes(root, path, title, (-0.5, n as f64 - 0.5), (floor, top))?;
+        let label_of = |x: &f64| {
+            let i = x.round();
+            if (x - i).abs() < 1e-6 && i >= 0.0 && (i as usize) < n {
+                labels[i as usize].clone()
             } else {
                 String::new()
             }
-        })
-        .y_desc("mean error (mm, log scale)")
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 17))
-        .draw()
-        .map_err(|e| plot_error(path, e))?;
-    let width = 0.8 / series.len() as f64;
-    for (k, line) in series.iter().enumerate() {
-        let colour = Palette99::pick(k).to_rgba();
-        let offset = -0.4 + width * k as f64;
+        };
         chart
-            .draw_series(line.values.iter().enumerate().filter_map(|(i, v)| {
-                let v = v.filter(|v| v.is_finite() && *v > 0.0)?;
-                let x = i as f64 + offset;
-                Some(Rectangle::new(
-                    [(x, floor), (x + width * 0.9, v.log10())],
-                    colour.filled(),
-                ))
-            }))
-            .map_err(|e| plot_error(path, e))?
-            .label(line.name.clone())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled()));
-    }
-    if let Some(reference) = reference {
-        let centre = -0.4 + width * 0.45;
-        chart
-            .draw_series(
-                reference
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, r)| {
-                        r.filter(|r| *r > 0.0)
-                            .map(|r| (i as f64 + centre, r.log10()))
-                    })
-                    .map(|p| TriangleMarker::new(p, 8, RED.filled())),
-            )
-            .map_err(|e| plot_error(path, e))?
-            .label("paper")
-            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, RED.filled()));
-    }
-    finish(&root, chart, path)
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(n.max(2) * 2 + 1)
+            .x_label_formatter(&label_of)
+            // Label whole decades only: 0.01, 0.1, 1, 10.
+            .y_label_formatter(&|v: &f64| {
+                if (v - v.round()).abs() < 1e-6 {
+                    let decade = v.round() as i32;
+                    format!("{}", 10f64.powi(decade))
+                } else {
+                    String::new()
+                }
+            })
+            .y_desc("mean error (mm, log scale)")
+            .label_style((FONT, 15))
+            .axis_desc_style((FONT, 17))
+            .draw()
+            .map_err(|e| plot_error(path, e))?;
+        let width = 0.8 / series.len() as f64;
+        for (k, line) in series.iter().enumerate() {
+            let colour = Palette99::pick(k).to_rgba();
+            let offset = -0.4 + width * k as f64;
+            chart
+                .draw_series(line.values.iter().enumerate().filter_map(|(i, v)| {
+                    let v = v.filter(|v| v.is_finite() && *v > 0.0)?;
+                    let x = i as f64 + offset;
+                    Some(Rectangle::new(
+                        [(x, floor), (x + width * 0.9, v.log10())],
+                        colour.filled(),
+                    ))
+                }))
+                .map_err(|e| plot_error(path, e))?
+                .label(line.name.clone())
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 5), (x + 15, y + 5)], colour.filled())
+                });
+        }
+        if let Some(reference) = reference {
+            let centre = -0.4 + width * 0.45;
+            chart
+                .draw_series(
+                    reference
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, r)| {
+                            r.filter(|r| *r > 0.0)
+                                .map(|r| (i as f64 + centre, r.log10()))
+                        })
+                        .map(|p| TriangleMarker::new(p, 8, RED.filled())),
+                )
+                .map_err(|e| plot_error(path, e))?
+                .label("paper")
+                .legend(|(x, y)| TriangleMarker::new((x + 8, y), 6, RED.filled()));
+        }
+        finish(root, chart, path)
+    })
 }
 
 #[cfg(test)]

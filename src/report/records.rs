@@ -164,14 +164,27 @@ pub fn write_frames_csv<W: std::io::Write>(
     Ok(())
 }
 
-/// Wall time of the shared stages of a run, in seconds (each method's own times are in its
-/// [`MethodSummary`]).
+/// Wall times of a run, in seconds: kept apart from the [`RunSummary`] so that two runs of the
+/// same scenario and seed write byte-identical results (`timings.json` only on request).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Timings {
     /// Simulating and rendering (0 when the workbench had the datasets already).
     pub simulate: f64,
     /// Feature extraction.
     pub features: f64,
+    /// Each method's, in the scenario's order.
+    pub methods: Vec<MethodTimings>,
+}
+
+/// Wall times of one method.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MethodTimings {
+    /// The method.
+    pub method: String,
+    /// Fitting (validation included).
+    pub fit_seconds: f64,
+    /// Estimating every test frame.
+    pub track_seconds: f64,
 }
 
 /// What one method measured on a run's test frames.
@@ -194,10 +207,6 @@ pub struct MethodSummary {
     pub frames_fallback: usize,
     /// Mean number of features combined per frame, for methods that choose them.
     pub mean_group_size: Option<f64>,
-    /// Fitting (validation included), in seconds.
-    pub fit_seconds: f64,
-    /// Estimating every test frame, in seconds.
-    pub track_seconds: f64,
     /// Clean against corrupted frames, in a run with faults.
     pub faults: Option<FaultSummary>,
     /// How the plausibility regions fared on the clean frames, for methods that give them.
@@ -260,8 +269,6 @@ impl MethodSummary {
         method: &str,
         records: &[FrameRecord],
         per_motion: Vec<(String, Option<ErrorStats>)>,
-        fit_seconds: f64,
-        track_seconds: f64,
     ) -> Self {
         let errors: Vec<f64> = records.iter().filter_map(|r| r.error).collect();
         let with_estimate = records.iter().filter(|r| r.estimate.is_some()).count();
@@ -281,8 +288,6 @@ impl MethodSummary {
             frames_fallback: count(|f| f.fallback),
             mean_group_size: (!groups.is_empty())
                 .then(|| groups.iter().sum::<usize>() as f64 / records.len().max(1) as f64),
-            fit_seconds,
-            track_seconds,
             faults: FaultSummary::of(records),
             region: RegionSummary::of(records),
         }
@@ -440,8 +445,6 @@ pub struct RunSummary {
     pub paper_error: Option<f64>,
     /// What the scenario expects.
     pub expect: Expectations,
-    /// Shared stage timings.
-    pub timings: Timings,
 }
 
 impl RunSummary {
@@ -535,8 +538,6 @@ pub(super) mod tests {
             frames_with_features_left_out: 0,
             frames_fallback: 0,
             mean_group_size: None,
-            fit_seconds: 0.0,
-            track_seconds: 0.0,
             faults: None,
             region: None,
         }
@@ -573,7 +574,6 @@ pub(super) mod tests {
             ],
             paper_error: None,
             expect,
-            timings: Timings::default(),
         };
         let missed = summary.regressions();
         assert_eq!(missed.len(), 4, "{missed:?}");

@@ -212,7 +212,6 @@ impl SeedReport {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::Timings;
     use crate::scenario::Expectations;
 
     fn run(scenario: &str, seed: u64, errors: &[(&str, f64)]) -> RunSummary {
@@ -230,7 +229,6 @@ mod tests {
                 .collect(),
             paper_error: None,
             expect: Expectations::default(),
-            timings: Timings::default(),
         }
     }
 

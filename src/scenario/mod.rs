@@ -524,6 +524,19 @@ impl CheckedScenario {
         &self.faults
     }
 
+    /// The scenario as TOML, as written (its seed included, its random paths' seeds still to be
+    /// derived): `evitrack run` of this text is the same run. Each run folder keeps it as
+    /// `scenario.toml`, and a sweep resumes a run only when the text is the same.
+    ///
+    /// # Errors
+    /// [`ScenarioError::Invalid`] if a setting has no TOML form.
+    pub fn to_toml(&self) -> Result<String, ScenarioError> {
+        toml::to_string(&self.raw).map_err(|e| ScenarioError::Invalid {
+            scenario: self.name().to_string(),
+            message: format!("the settings do not serialise as TOML: {e}"),
+        })
+    }
+
     /// The same scenario with another master seed (checked again: seeds derive from it).
     pub fn with_seed(&self, seed: u64) -> Result<Self, ScenarioError> {
         Scenario {
@@ -536,7 +549,10 @@ impl CheckedScenario {
 
 mod sweep;
 
-pub use sweep::{Comparison, FindingSpec, ScenarioSet, SeedList, Side, Sweep, VariantSpec};
+pub use sweep::{
+    Comparison, FindingSpec, ScenarioSet, SeedList, Side, Sweep, VariantSpec, MAX_RUNS,
+    MAX_VARIANTS,
+};
 
 #[cfg(test)]
 mod tests;

@@ -222,3 +222,17 @@ right = "s-y"
         .to_string()
         .contains("empty"));
 }
+
+#[test]
+fn a_checked_scenario_written_as_toml_reads_back_as_the_same_run() {
+    let text = format!(
+        "{BASE}[sweep.grid]\n\"sim.noise.sigma\" = [1.0, 3.0]\n[[faults]]\nkind = \"stuck\"\nfeatures = [\"size_line1\"]\nshare = 0.2\nvalue = 3.0\n"
+    );
+    let set = ScenarioSet::parse(&text, "t.toml").unwrap();
+    for variant in &set.variants {
+        let toml = variant.to_toml().unwrap();
+        let again = ScenarioSet::parse(&toml, "again.toml").unwrap();
+        assert_eq!(&again.base, variant);
+        assert_eq!(again.base.to_toml().unwrap(), toml);
+    }
+}

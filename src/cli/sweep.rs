@@ -1,0 +1,527 @@
+//! `sweep` and `merge`: every variant of scenario files, each run's files written as soon as it
+//! finishes, a killed sweep resumed, shards merged in the sweep's order.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+
+use super::ensure_writable;
+use super::runs::StageBars;
+use super::tables::{evidential_of, print_tables, seed_tables, states_text};
+use evitrack::experiment::{self, Workbench};
+use evitrack::report::{self, write_run, RunSummary};
+use evitrack::report::{Comparison, SeedReport};
+use evitrack::scenario::{CheckedScenario, ScenarioSet, SeedList};
+
+fn parse_seeds(text: &str) -> Result<SeedList, String> {
+    SeedList::parse(text)
+}
+
+/// What `sweep.json` holds: every finished run (in the sweep's order), the comparisons asked
+/// for, and the report across seeds. While a sweep runs, and after it was killed or a run failed,
+/// `complete` is false and `pending` names the runs without results.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SweepFile {
+    #[serde(default = "finished")]
+    complete: bool,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pending: Vec<String>,
+    /// The slice this file holds, `[i, n]` zero-based, when `--shard` ran: run `k` of shard `i`
+    /// is run `k·n + i` of the sweep, which `merge` puts back in order.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    shard: Option<[usize; 2]>,
+    runs: Vec<RunSummary>,
+    comparisons: Vec<Comparison>,
+    across_seeds: SeedReport,
+}
+
+fn finished() -> bool {
+    true
+}
+
+impl SweepFile {
+    fn new(runs: Vec<RunSummary>, pending: Vec<String>, comparisons: &[Comparison]) -> Self {
+        Self {
+            complete: pending.is_empty(),
+            across_seeds: SeedReport::new(&runs, comparisons),
+            pending,
+            shard: None,
+            runs,
+            comparisons: comparisons.to_vec(),
+        }
+    }
+
+    fn write(&self, path: &Path) -> Result<()> {
+        let json = serde_json::to_string_pretty(self)? + "\n";
+        evitrack::atomic::write(path, json.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))
+    }
+}
+
+/// What a sweep has so far, run by run in the sweep's order.
+struct SweepState {
+    summaries: Vec<Option<RunSummary>>,
+    /// Why a run failed or its files could not be written.
+    failures: Vec<Option<String>>,
+}
+
+/// The summary of `run` if `dir` holds its finished results: `results.json` of its name and seed
+/// beside the same `scenario.toml`.
+fn finished_run(dir: &Path, run: &CheckedScenario) -> Option<RunSummary> {
+    let scenario = std::fs::read_to_string(dir.join(report::SCENARIO_FILE)).ok()?;
+    if scenario != run.to_toml().ok()? {
+        return None;
+    }
+    let text = std::fs::read_to_string(dir.join(report::RESULTS_FILE)).ok()?;
+    let summary: RunSummary = serde_json::from_str(&text).ok()?;
+    (summary.scenario == run.name() && summary.seed == run.seed).then_some(summary)
+}
+
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// Scenario files (TOML) whose [sweep] variants to run.
+    #[arg(required = true)]
+    scenarios: Vec<PathBuf>,
+    /// Variants run at once (default: the number of cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Compare against each variant's expectations (on its own seed); exit 1 with a list of what
+    /// regressed.
+    #[arg(long)]
+    check: bool,
+    /// Master seeds for every variant: a count (`10`: each variant's own seed and the next 9) or
+    /// a list (`1,4,7`). Prints each variant's mean ± 95 % interval across them and each
+    /// comparison as a paired difference. Default: the file's `[sweep] seeds`, else each
+    /// variant's own seed.
+    #[arg(long, value_parser = parse_seeds)]
+    seeds: Option<SeedList>,
+    /// Run only slice i of n (1-based, e.g. `2/4`) of the variants, for batch schedulers; merge
+    /// the shards' JSON files with `evitrack merge`.
+    #[arg(long)]
+    shard: Option<String>,
+    /// Output folder. Runs whose folder already holds their finished results (same scenario and
+    /// seed) are kept, not run again: a killed sweep resumes where it stopped.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Also write each run's wall times to `timings.json` (without it, two sweeps of the same
+    /// files and seeds write byte-identical folders).
+    #[arg(long)]
+    timings: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    /// Shard result files (`sweep-shard-*.json`) written by `sweep --shard`.
+    #[arg(required = true)]
+    shards: Vec<PathBuf>,
+    /// Output folder for the merged table, CSV, JSON and plots.
+    #[arg(long)]
+    out: PathBuf,
+    /// Compare against the expectations; exit 1 with a list of what regressed.
+    #[arg(long)]
+    check: bool,
+}
+
+/// Parses `i/n` (1-based) into a zero-based slice index and the slice count.
+fn parse_shard(text: &str) -> Result<(usize, usize)> {
+    let parsed = text.split_once('/').and_then(|(i, n)| {
+        Some((
+            i.trim().parse::<usize>().ok()?,
+            n.trim().parse::<usize>().ok()?,
+        ))
+    });
+    match parsed {
+        Some((i, n)) if n >= 1 && (1..=n).contains(&i) => Ok((i - 1, n)),
+        _ => bail!("--shard `{text}` must look like `i/n` with 1 ≤ i ≤ n, e.g. `2/4`"),
+    }
+}
+
+pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
+    let mut variants: Vec<CheckedScenario> = Vec::new();
+    let mut runs = Vec::new();
+    let mut comparisons = Vec::new();
+    for path in &args.scenarios {
+        let set = ScenarioSet::load(path)?;
+        runs.extend(set.seeded(args.seeds.as_ref())?);
+        comparisons.extend(set.comparisons.iter().cloned());
+        variants.extend(set.variants);
+    }
+    let names: std::collections::HashSet<&str> = variants.iter().map(|v| v.name()).collect();
+    if names.len() != variants.len() {
+        bail!("two variants of these scenario files have the same name: rename one scenario");
+    }
+    // Expectations hold for each variant's own seed.
+    let own: std::collections::HashSet<(String, u64)> = variants
+        .iter()
+        .map(|v| (v.name().to_string(), v.seed))
+        .collect();
+    let seeded = runs.len() > variants.len();
+    let total = runs.len();
+    let shard = args.shard.as_deref().map(parse_shard).transpose()?;
+    if let Some((i, n)) = shard {
+        runs = runs
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| k % n == i)
+            .map(|(_, v)| v)
+            .collect();
+        eprintln!("shard {}/{n}: {} of {total} runs", i + 1, runs.len());
+    }
+    let jobs = args.jobs.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    ensure_writable(&args.out)?;
+    let folder = |run: &CheckedScenario| {
+        let dir = args.out.join(run.name());
+        if seeded {
+            dir.join(format!("seed-{}", run.seed))
+        } else {
+            dir
+        }
+    };
+    let labels: Vec<String> = runs
+        .iter()
+        .map(|v| match seeded {
+            true => format!("{} seed {}", v.name(), v.seed),
+            false => v.name().to_string(),
+        })
+        .collect();
+    let file_name = match shard {
+        Some((i, n)) => format!("sweep-shard-{}-of-{n}.json", i + 1),
+        None => "sweep.json".to_string(),
+    };
+    let json_path = args.out.join(&file_name);
+    let summaries: Vec<Option<RunSummary>> = runs
+        .iter()
+        .map(|run| finished_run(&folder(run), run))
+        .collect();
+    let todo: Vec<usize> = (0..runs.len())
+        .filter(|&k| summaries[k].is_none())
+        .collect();
+    if todo.len() < runs.len() {
+        eprintln!(
+            "resuming: {} of {} runs finished earlier in {} are kept (remove a run's folder to \
+             run it again)",
+            runs.len() - todo.len(),
+            runs.len(),
+            args.out.display()
+        );
+    }
+    // The sweep file says what is finished after every run, so a kill loses nothing finished.
+    let sweep_file = |state: &SweepState| {
+        let pending = (0..labels.len())
+            .filter(|&k| state.summaries[k].is_none() || state.failures[k].is_some())
+            .map(|k| labels[k].clone())
+            .collect();
+        let runs = state.summaries.iter().flatten().cloned().collect();
+        let mut file = SweepFile::new(runs, pending, &comparisons);
+        file.shard = shard.map(|(i, n)| [i, n]);
+        file
+    };
+    let state = SweepState {
+        failures: vec![None; summaries.len()],
+        summaries,
+    };
+    sweep_file(&state).write(&json_path)?;
+    let state = std::sync::Mutex::new(state);
+    let todo_runs: Vec<CheckedScenario> = todo.iter().map(|&k| runs[k].clone()).collect();
+    let todo_labels: Vec<String> = todo.iter().map(|&k| labels[k].clone()).collect();
+    let bench = Workbench::new();
+    let bars = StageBars::new(&todo_labels);
+    let clock = std::time::Instant::now();
+    experiment::run_each(
+        &todo_runs,
+        jobs,
+        &bench,
+        &|i, stage, done, total| bars.update(i, stage, done, total),
+        &|i, result| {
+            let k = todo[i];
+            // A run whose files cannot be written keeps its numbers but stays pending.
+            let (summary, failure) = match result {
+                Ok(output) => {
+                    let written = write_run(&folder(&runs[k]), &output, args.timings);
+                    (Some(output.summary), written.err().map(|e| e.to_string()))
+                }
+                Err(error) => (None, Some(error.to_string())),
+            };
+            let mut state = state.lock().unwrap_or_else(|e| e.into_inner());
+            state.summaries[k] = summary;
+            state.failures[k] = failure.map(|message| format!("{}: {message}", labels[k]));
+            if let Err(error) = sweep_file(&state).write(&json_path) {
+                state.failures[k].get_or_insert(format!("{error:#}"));
+            }
+        },
+    );
+    bars.finish();
+    let elapsed = clock.elapsed().as_secs_f64();
+    let state = state.into_inner().unwrap_or_else(|e| e.into_inner());
+    let file = sweep_file(&state);
+    let mut failures: Vec<String> = state.failures.into_iter().flatten().collect();
+    if let Err(error) = write_sweep_report(&args.out, &file_name, &file) {
+        failures.push(format!("{error:#}"));
+    }
+    eprintln!(
+        "{} runs ({} run now) in {elapsed:.1} s on {jobs} jobs; per-run outputs in {}/<variant>/{}",
+        file.runs.len(),
+        todo.len(),
+        args.out.display(),
+        if seeded { "seed-<seed>/" } else { "" }
+    );
+    let checked: Vec<RunSummary> = file
+        .runs
+        .into_iter()
+        .filter(|s| own.contains(&(s.scenario.clone(), s.seed)))
+        .collect();
+    finish_sweep(&checked, &failures, args.check)
+}
+
+/// Prints the table, writes JSON, CSV and plots of a set of run summaries.
+fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let all_runs = file.runs.as_slice();
+    // Tables and plots show each variant's first run; with several seeds per variant, the
+    // tables across seeds follow.
+    let mut first: Vec<&RunSummary> = Vec::new();
+    for run in all_runs {
+        if !first.iter().any(|f| f.scenario == run.scenario) {
+            first.push(run);
+        }
+    }
+    print_tables(&first);
+    if first.len() < all_runs.len() {
+        println!("{}", seed_tables(&file.across_seeds));
+    }
+    let summaries: Vec<RunSummary> = first.iter().map(|&s| s.clone()).collect();
+    let summaries = summaries.as_slice();
+    file.write(&out.join(json_name))?;
+    let csv_path = out.join(json_name.replace(".json", ".csv"));
+    let mut csv = csv::Writer::from_writer(Vec::new());
+    csv.write_record([
+        "scenario",
+        "seed",
+        "method",
+        "samples",
+        "states",
+        "constructor",
+        "threshold",
+        "mean",
+        "median",
+        "rms",
+        "max",
+        "paper",
+        "frames",
+        "without_estimate",
+        "with_missing_features",
+        "with_features_left_out",
+        "fallback",
+        "expected_max_mean",
+        "corrupted_frames",
+        "mean_clean",
+        "mean_corrupted",
+        "corrupted_without_estimate",
+        "detection_auc",
+        "left_out_precision",
+        "left_out_recall",
+        "region_coverage",
+        "region_mean_area",
+    ])?;
+    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
+    for s in all_runs {
+        for m in &s.methods {
+            let evidential = evidential_of(s, m);
+            let states = states_text(evidential, " ");
+            let f = m.faults.as_ref();
+            let expected = match evidential {
+                Some(_) => s.expect.max_mean_error,
+                None => s
+                    .expect
+                    .methods
+                    .get(&m.method)
+                    .and_then(|e| e.max_mean_error),
+            };
+            csv.write_record([
+                s.scenario.clone(),
+                s.seed.to_string(),
+                m.method.clone(),
+                s.samples.to_string(),
+                states,
+                evidential.map_or(String::new(), |e| e.constructor.clone()),
+                evidential.map_or(String::new(), |e| e.conflict_threshold.value().to_string()),
+                num(m.error.map(|e| e.mean)),
+                num(m.error.map(|e| e.median)),
+                num(m.error.map(|e| e.rms)),
+                num(m.error.map(|e| e.max)),
+                num(s.paper_error.filter(|_| evidential.is_some())),
+                s.frames.to_string(),
+                m.frames_without_estimate.to_string(),
+                m.frames_with_missing_features.to_string(),
+                m.frames_with_features_left_out.to_string(),
+                m.frames_fallback.to_string(),
+                num(expected),
+                f.map_or(String::new(), |f| f.corrupted_frames.to_string()),
+                num(f.and_then(|f| f.error_clean).map(|e| e.mean)),
+                num(f.and_then(|f| f.error_corrupted).map(|e| e.mean)),
+                f.map_or(String::new(), |f| f.corrupted_without_estimate.to_string()),
+                num(f.and_then(|f| f.detection_auc)),
+                num(f.and_then(|f| f.left_out_precision)),
+                num(f.and_then(|f| f.left_out_recall)),
+                num(m.region.as_ref().map(|r| r.coverage)),
+                num(m.region.as_ref().map(|r| r.mean_area)),
+            ])?;
+        }
+    }
+    let bytes = csv.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
+    evitrack::atomic::write(&csv_path, &bytes)
+        .with_context(|| format!("writing {}", csv_path.display()))?;
+    if summaries.is_empty() {
+        return Ok(());
+    }
+    // One series per method, in the order the methods first appear.
+    let mut names: Vec<&str> = Vec::new();
+    for m in summaries.iter().flat_map(|s| &s.methods) {
+        if !names.contains(&m.method.as_str()) {
+            names.push(&m.method);
+        }
+    }
+    let mean_of = |s: &RunSummary, name: &str| s.method(name).and_then(|m| m.error).map(|e| e.mean);
+    let series: Vec<report::BarSeries> = names
+        .iter()
+        .map(|&name| report::BarSeries {
+            name: name.to_string(),
+            values: summaries.iter().map(|s| mean_of(s, name)).collect(),
+        })
+        .collect();
+    let labels: Vec<String> = summaries.iter().map(|s| s.scenario.clone()).collect();
+    // The paper's figures are the evidential tracker's.
+    let paper: Vec<Option<f64>> = summaries
+        .iter()
+        .map(|s| s.paper_error.filter(|_| s.evidential.is_some()))
+        .collect();
+    let has_paper = paper.iter().any(Option::is_some);
+    let any_error = series.iter().any(|s| s.values.iter().any(Option::is_some));
+    if any_error {
+        report::plot_errors_by_variant(
+            &out.join(json_name.replace(".json", "-errors.png")),
+            "mean estimation error per variant and method",
+            &labels,
+            &series,
+            has_paper.then_some(paper.as_slice()),
+        )?;
+    }
+    // Where the variants differ in their evidential state counts, error against the total count.
+    let totals: Vec<Option<usize>> = summaries
+        .iter()
+        .map(|s| s.evidential.as_ref().map(|e| e.states.iter().sum()))
+        .collect();
+    let distinct: std::collections::HashSet<_> = totals.iter().flatten().collect();
+    if distinct.len() > 1 {
+        let lines: Vec<report::PlotSeries> = series
+            .iter()
+            .map(|line| {
+                let mut points: Vec<(f64, f64)> = totals
+                    .iter()
+                    .zip(&line.values)
+                    .filter_map(|(n, e)| Some((n.as_ref().copied()? as f64, (*e)?)))
+                    .collect();
+                points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                report::PlotSeries {
+                    name: line.name.clone(),
+                    points,
+                }
+            })
+            .filter(|line| !line.points.is_empty())
+            .collect();
+        report::plot_series(
+            &out.join(json_name.replace(".json", "-states.png")),
+            "mean error against the evidential model's total number of states",
+            "Σ nᵢ (states over all features)",
+            "mean error (mm)",
+            &lines,
+        )?;
+    }
+    Ok(())
+}
+
+/// Reports failures and regressions. Exit status 2 when a variant failed to run or write, else
+/// 1 when `check` finds a regression, else 0.
+fn finish_sweep(summaries: &[RunSummary], failures: &[String], check: bool) -> Result<ExitCode> {
+    for failure in failures {
+        eprintln!("failed: {failure}");
+    }
+    if check {
+        let regressions: Vec<String> = summaries.iter().flat_map(RunSummary::regressions).collect();
+        if regressions.is_empty() {
+            eprintln!(
+                "check: all {} variants meet their expectations",
+                summaries.len()
+            );
+        } else {
+            eprintln!("check: {} regressions", regressions.len());
+            for line in &regressions {
+                eprintln!("  - {line}");
+            }
+        }
+        if failures.is_empty() && !regressions.is_empty() {
+            return Ok(ExitCode::from(1));
+        }
+    }
+    Ok(if failures.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(2)
+    })
+}
+
+pub fn merge(args: &MergeArgs) -> Result<ExitCode> {
+    // (position in the sweep, summary): shards interleave, run k of shard i of n being run
+    // k·n + i; files without a slice keep the order they are given in, after the shards.
+    let mut runs: Vec<((usize, usize), RunSummary)> = Vec::new();
+    let mut comparisons: Vec<Comparison> = Vec::new();
+    for (f, path) in args.shards.iter().enumerate() {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let shard: SweepFile = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a sweep result file", path.display()))?;
+        if !shard.complete {
+            bail!(
+                "{} is incomplete ({} runs without results: {}): run its sweep again to finish it",
+                path.display(),
+                shard.pending.len(),
+                shard.pending.join(", ")
+            );
+        }
+        for (k, run) in shard.runs.into_iter().enumerate() {
+            let position = match shard.shard {
+                Some([i, n]) => (0, k * n + i),
+                None => (1 + f, k),
+            };
+            runs.push((position, run));
+        }
+        for c in shard.comparisons {
+            if !comparisons.contains(&c) {
+                comparisons.push(c);
+            }
+        }
+    }
+    runs.sort_by_key(|(position, _)| *position);
+    let summaries: Vec<RunSummary> = runs.into_iter().map(|(_, s)| s).collect();
+    let mut seen = std::collections::HashSet::new();
+    if let Some(dup) = summaries
+        .iter()
+        .find(|s| !seen.insert((s.scenario.clone(), s.seed)))
+    {
+        bail!(
+            "variant `{}` with seed {} appears in two shard files: merge each shard once",
+            dup.scenario,
+            dup.seed
+        );
+    }
+    ensure_writable(&args.out)?;
+    let file = SweepFile::new(summaries, Vec::new(), &comparisons);
+    write_sweep_report(&args.out, "sweep.json", &file)?;
+    finish_sweep(&file.runs, &[], args.check)
+}

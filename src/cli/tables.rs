@@ -1,0 +1,184 @@
+//! The tables the run commands print: errors per variant and method, faults, plausibility
+//! regions, and the report across seeds.
+
+use super::fmt_mm;
+use evitrack::report::{EvidentialSummary, MethodSummary, RunSummary, SeedReport, Table};
+
+/// The run's evidential model, on the evidential method's row only.
+pub(super) fn evidential_of<'a>(
+    s: &'a RunSummary,
+    m: &MethodSummary,
+) -> Option<&'a EvidentialSummary> {
+    s.evidential.as_ref().filter(|_| m.method == "evidential")
+}
+
+/// The evidential model's state counts joined by `sep` (empty on other rows).
+pub(super) fn states_text(evidential: Option<&EvidentialSummary>, sep: &str) -> String {
+    evidential.map_or(String::new(), |e| {
+        let states: Vec<String> = e.states.iter().map(usize::to_string).collect();
+        states.join(sep)
+    })
+}
+
+/// One row per variant and method: the evidential model's states and constructor, then each
+/// method's errors (the paper's figure beside the evidential row).
+pub(super) fn error_table(summaries: &[&RunSummary]) -> Table {
+    let mut table = Table::new([
+        "scenario",
+        "method",
+        "samples",
+        "states",
+        "constructor",
+        "mean",
+        "median",
+        "RMS",
+        "max",
+        "paper",
+        "no est.",
+        "left out",
+        "fallback",
+    ]);
+    for s in summaries {
+        for m in &s.methods {
+            let evidential = evidential_of(s, m);
+            let states = states_text(evidential, ",");
+            table.push([
+                s.scenario.clone(),
+                m.method.clone(),
+                s.samples.to_string(),
+                states,
+                evidential.map_or(String::new(), |e| e.constructor.clone()),
+                fmt_mm(m.error.map(|e| e.mean)),
+                fmt_mm(m.error.map(|e| e.median)),
+                fmt_mm(m.error.map(|e| e.rms)),
+                fmt_mm(m.error.map(|e| e.max)),
+                fmt_mm(s.paper_error.filter(|_| evidential.is_some())),
+                format!("{}/{}", m.frames_without_estimate, s.frames),
+                m.frames_with_features_left_out.to_string(),
+                m.frames_fallback.to_string(),
+            ]);
+        }
+    }
+    table
+}
+
+/// With faults: each method's error on clean and on corrupted frames, how well its detection
+/// score tells them apart, and how many of the features it left out were the corrupted ones.
+/// `None` when no run had faults.
+pub(super) fn fault_table(summaries: &[&RunSummary]) -> Option<Table> {
+    let mut table = Table::new([
+        "scenario",
+        "method",
+        "corrupted",
+        "clean mean",
+        "corr. mean",
+        "ratio",
+        "corr. no est.",
+        "AUC",
+        "left-out prec.",
+        "recall",
+    ]);
+    let share = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3}"));
+    let mut any = false;
+    for s in summaries {
+        for m in &s.methods {
+            let Some(f) = &m.faults else { continue };
+            any = true;
+            let clean = f.error_clean.map(|e| e.mean);
+            let corrupted = f.error_corrupted.map(|e| e.mean);
+            table.push([
+                s.scenario.clone(),
+                m.method.clone(),
+                format!(
+                    "{}/{}",
+                    f.corrupted_frames,
+                    f.corrupted_frames + f.clean_frames
+                ),
+                fmt_mm(clean),
+                fmt_mm(corrupted),
+                share(clean.zip(corrupted).map(|(a, b)| b / a)),
+                f.corrupted_without_estimate.to_string(),
+                share(f.detection_auc),
+                share(f.left_out_precision),
+                share(f.left_out_recall),
+            ]);
+        }
+    }
+    any.then_some(table)
+}
+
+/// For methods with plausibility regions: on the clean frames, the share of regions holding the
+/// true pose and their size. `None` when no method gave regions.
+pub(super) fn region_table(summaries: &[&RunSummary]) -> Option<Table> {
+    let mut table = Table::new([
+        "scenario",
+        "method",
+        "clean frames",
+        "no region",
+        "coverage",
+        "mean area (mm²)",
+        "median area (mm²)",
+    ]);
+    let mut any = false;
+    for s in summaries {
+        for m in &s.methods {
+            let Some(r) = &m.region else { continue };
+            any = true;
+            table.push([
+                s.scenario.clone(),
+                m.method.clone(),
+                r.frames.to_string(),
+                r.frames_without_region.to_string(),
+                format!("{:.3}", r.coverage),
+                format!("{:.5}", r.mean_area),
+                format!("{:.5}", r.median_area),
+            ]);
+        }
+    }
+    any.then_some(table)
+}
+
+/// Prints the error table, the fault table when runs had faults, and the region table when a
+/// method gave plausibility regions.
+pub(super) fn print_tables(summaries: &[&RunSummary]) {
+    println!("{}", error_table(summaries));
+    if let Some(faults) = fault_table(summaries) {
+        println!("{faults}");
+    }
+    if let Some(regions) = region_table(summaries) {
+        println!("{regions}");
+    }
+}
+
+/// Each variant's mean error across seeds, then each comparison's paired difference.
+pub(super) fn seed_tables(report: &SeedReport) -> String {
+    let mut variants = Table::new(["scenario", "method", "seeds", "mean error ± 95 % (mm)"]);
+    for v in &report.variants {
+        variants.push([
+            v.side.scenario.clone(),
+            v.side.method.clone(),
+            v.seeds.len().to_string(),
+            v.mean_error.text(4),
+        ]);
+    }
+    let mut findings = Table::new([
+        "finding",
+        "left",
+        "right",
+        "seeds",
+        "left − right ± 95 % (mm)",
+        "verdict",
+    ]);
+    for f in &report.findings {
+        let side = |s: &evitrack::report::Side| format!("{} {}", s.scenario, s.method);
+        findings.push([
+            f.comparison.name.clone(),
+            side(&f.comparison.left),
+            side(&f.comparison.right),
+            f.difference.n.to_string(),
+            f.difference.text(4),
+            f.verdict.text().to_string(),
+        ]);
+    }
+    format!("{variants}\n{findings}")
+}
