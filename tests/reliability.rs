@@ -617,3 +617,24 @@ fn smaller_messages_say_what_happened() {
     assert!(stderr.contains("none with an estimate"), "{stderr}");
     assert!(!stderr.contains("no ground truth"), "{stderr}");
 }
+
+#[test]
+fn the_library_refuses_features_of_the_other_polarity() {
+    use evitrack::estimator::DatasetFeatures;
+    use evitrack::features::{FeatureConfig, Polarity};
+    let dir = tempfile::tempdir().unwrap();
+    let mut dataset = Dataset::read(small_dataset(dir.path())).unwrap();
+    let set = FeatureConfig::default().check().unwrap();
+    assert!(DatasetFeatures::extract(&dataset, &set, "data").is_ok());
+    dataset.manifest.camera.polarity = Polarity::DarkOnBright;
+    let error = DatasetFeatures::extract(&dataset, &set, "data")
+        .err()
+        .expect("the other polarity is refused")
+        .to_string();
+    assert!(error.contains("polarity"), "{error}");
+    let dark = FeatureConfig {
+        polarity: Polarity::DarkOnBright,
+        ..FeatureConfig::default()
+    };
+    assert!(DatasetFeatures::extract(&dataset, &dark.check().unwrap(), "data").is_ok());
+}

@@ -53,6 +53,16 @@ pub enum EstimatorError {
         /// Values given.
         found: usize,
     },
+    /// The features read frames the other way round from the dataset's manifest.
+    #[error("{what} declares `camera.polarity = {declared:?}` in its manifest, but the features read frames as {configured:?}: set the feature configuration's `polarity` to the manifest's")]
+    Polarity {
+        /// The dataset.
+        what: String,
+        /// The manifest's polarity.
+        declared: crate::features::Polarity,
+        /// The feature configuration's.
+        configured: crate::features::Polarity,
+    },
     /// A dataset has no ground truth where it is needed.
     #[error("{0} has no ground-truth poses: training and validation need them")]
     NoTruth(String),
@@ -357,12 +367,22 @@ impl DatasetFeatures {
     /// Extracts `set`'s features from every frame of `dataset`; `what` names it in errors.
     ///
     /// # Errors
-    /// [`EstimatorError::NoTruth`] when the dataset has no ground-truth poses.
+    /// [`EstimatorError::NoTruth`] when the dataset has no ground-truth poses;
+    /// [`EstimatorError::Polarity`] when the set reads frames the other way round from the one
+    /// the dataset's manifest declares.
     pub fn extract(
         dataset: &Dataset,
         set: &FeatureSet,
         what: &str,
     ) -> Result<Self, EstimatorError> {
+        let declared = dataset.manifest.camera.polarity;
+        if let Some(configured) = set.polarity().filter(|&p| p != declared) {
+            return Err(EstimatorError::Polarity {
+                what: what.to_string(),
+                declared,
+                configured,
+            });
+        }
         let poses = dataset
             .truth_positions()
             .ok_or_else(|| EstimatorError::NoTruth(what.to_string()))?;

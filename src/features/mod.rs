@@ -262,7 +262,10 @@ impl FeatureConfig {
                 background: self.barycentre.background,
             }));
         }
-        FeatureSet::new(features)
+        Ok(FeatureSet {
+            polarity: Some(self.polarity),
+            ..FeatureSet::new(features)?
+        })
     }
 }
 
@@ -351,6 +354,8 @@ pub struct FeatureSet {
     features: Vec<Arc<dyn Feature>>,
     counts: Vec<usize>,
     names: Vec<String>,
+    /// How the set reads frames, when it comes from a [`FeatureConfig`].
+    polarity: Option<Polarity>,
 }
 
 impl FeatureSet {
@@ -376,7 +381,14 @@ impl FeatureSet {
             features,
             counts,
             names,
+            polarity: None,
         })
+    }
+
+    /// The polarity the set reads frames with: a [`FeatureConfig`]'s, `None` for your own
+    /// extractors.
+    pub fn polarity(&self) -> Option<Polarity> {
+        self.polarity
     }
 
     /// Names of the values, in output order (e.g. `size_line0` … `size_line5`, `barycentre_x`,
