@@ -628,8 +628,7 @@ fn the_library_refuses_features_of_the_other_polarity() {
     assert!(DatasetFeatures::extract(&dataset, &set, "data").is_ok());
     dataset.manifest.camera.polarity = Polarity::DarkOnBright;
     let error = DatasetFeatures::extract(&dataset, &set, "data")
-        .err()
-        .expect("the other polarity is refused")
+        .expect_err("the other polarity is refused")
         .to_string();
     assert!(error.contains("polarity"), "{error}");
     let dark = FeatureConfig {
