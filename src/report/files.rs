@@ -37,6 +37,13 @@ pub fn write_run(
     timings: bool,
 ) -> Result<Vec<PathBuf>, ReportError> {
     std::fs::create_dir_all(dir).map_err(|e| write_error(dir, e))?;
+    // An older run's results must not stand beside this run's files until they are all written.
+    match std::fs::remove_file(dir.join(RESULTS_FILE)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(write_error(&dir.join(RESULTS_FILE), e))
+        }
+        _ => {}
+    }
     let mut written = Vec::new();
     let mut put = |name: String, bytes: &[u8]| -> Result<(), ReportError> {
         let path = dir.join(name);
