@@ -132,9 +132,9 @@ impl Engine {
         }
     }
 
-    /// The limit a function of `sets` sets breaks, as an error.
-    fn over(&self, sets: usize) -> EvidenceError {
-        match self.limits.check(sets, self.w) {
+    /// The limit a function of more than `max_sets` sets breaks, as an error.
+    fn over(&self) -> EvidenceError {
+        match self.limits.check(self.max_sets.saturating_add(1), self.w) {
             Err(e) => e,
             Ok(()) => EvidenceError::WorkLimit {
                 limit: WorkLimit::FocalSets,
@@ -406,16 +406,14 @@ fn run_in<R>(
     finish: impl FnOnce(Outcome<'_>) -> R,
 ) -> Result<Option<R>, EvidenceError> {
     let n = fs.first().map_or(0, |f| f.frame_size());
-    if let Some(f) = fs.iter().find(|f| f.focal().count() > engine.max_sets) {
-        let e = engine.over(f.focal().count());
-        scratch.table = engine.table;
-        return Err(e);
-    }
     let over = |engine: Engine, scratch_table: &mut Vec<u64>| {
-        let e = engine.over(engine.max_sets + 1);
+        let e = engine.over();
         *scratch_table = engine.table;
         e
     };
+    if fs.iter().any(|f| f.focal().count() > engine.max_sets) {
+        return Err(over(engine, &mut scratch.table));
+    }
     let Scratch {
         cur,
         next,

@@ -45,24 +45,19 @@ pub fn write_run(
         _ => {}
     }
     let mut written = Vec::new();
-    let mut put = |name: String, bytes: &[u8]| -> Result<(), ReportError> {
-        let path = dir.join(name);
-        crate::atomic::write(&path, bytes).map_err(|e| write_error(&path, e))?;
-        written.push(path);
-        Ok(())
-    };
-    put(SCENARIO_FILE.into(), output.scenario_toml.as_bytes())?;
+    let mut put = |name: &str, bytes: &[u8]| put_file(dir, name, bytes, &mut written);
+    put(SCENARIO_FILE, output.scenario_toml.as_bytes())?;
 
     let mut frames = Vec::new();
     write_frames_csv(&mut frames, &output.records, &output.summary.features)
         .map_err(|e| write_error(&dir.join("frames.csv"), e))?;
-    put("frames.csv".into(), &frames)?;
+    put("frames.csv", &frames)?;
 
     let mut samples = String::from("x,y,added_in_round\n");
     for (pose, round) in output.samples.iter().zip(&output.sample_rounds) {
         samples.push_str(&format!("{},{},{round}\n", pose[0], pose[1]));
     }
-    put("samples.csv".into(), samples.as_bytes())?;
+    put("samples.csv", samples.as_bytes())?;
 
     for estimator in &output.estimators {
         let name = match estimator.method() {
@@ -72,12 +67,12 @@ pub fn write_run(
         let text = estimator
             .to_json()
             .map_err(|e| write_error(&dir.join(&name), e))?;
-        put(name, text.as_bytes())?;
+        put(&name, text.as_bytes())?;
     }
     if timings {
         let json = serde_json::to_string_pretty(&output.timings)
             .map_err(|e| write_error(&dir.join("timings.json"), e))?;
-        put("timings.json".into(), (json + "\n").as_bytes())?;
+        put("timings.json", (json + "\n").as_bytes())?;
     }
 
     for summary in &output.summary.methods {
@@ -109,11 +104,21 @@ pub fn write_run(
             written.push(file);
         }
     }
-    let results = dir.join(RESULTS_FILE);
-    let json =
-        serde_json::to_string_pretty(&output.summary).map_err(|e| write_error(&results, e))?;
-    crate::atomic::write(&results, (json + "\n").as_bytes())
-        .map_err(|e| write_error(&results, e))?;
-    written.push(results);
+    let json = serde_json::to_string_pretty(&output.summary)
+        .map_err(|e| write_error(&dir.join(RESULTS_FILE), e))?;
+    put_file(dir, RESULTS_FILE, (json + "\n").as_bytes(), &mut written)?;
     Ok(written)
+}
+
+/// Writes `dir/name` atomically and adds it to `written`.
+fn put_file(
+    dir: &Path,
+    name: &str,
+    bytes: &[u8],
+    written: &mut Vec<PathBuf>,
+) -> Result<(), ReportError> {
+    let path = dir.join(name);
+    crate::atomic::write(&path, bytes).map_err(|e| write_error(&path, e))?;
+    written.push(path);
+    Ok(())
 }
