@@ -1,5 +1,13 @@
 //! Tracking one frame with the features given: 8 features, 400 sample poses (20 × 20 mesh),
-//! both constructors (issue 6, item 10). Target: median ≤ 20 µs.
+//! both constructors (issue 6, item 10). Target: median ≤ 20 µs (≤ 10 µs for `paper_like`,
+//! issue 16).
+//!
+//! `scale`: 10,000 sample poses (100 × 100 mesh) × 32 linear features of 3 states, directions
+//! spread over a half turn, Bayesian, each selection policy (issue 16): threshold ∞ on a clean
+//! frame; a finite threshold (1.05 × the clean frame's level) on the clean frame; the same
+//! threshold on a frame whose features 0 and 16 report a pose 8 mm away (every pair stays
+//! within it, so the groups below the full one are searched). Target: median ≤ 1 ms for the
+//! largest subset.
 //!
 //! `paper_like`: 8 linear features of the pose in different directions, 2–3 states each (the
 //! paper's state counts). `fine`: x and y with 20 states, their coarse versions with 7, x ± y with
@@ -28,16 +36,18 @@ impl Feat {
     }
 }
 
-/// A tracker over the 20 × 20 mesh and one frame's likelihoods at a random pose, the features in
-/// `corrupt` reporting a pose 8 mm away in x.
+/// A tracker over the `side` × `side` mesh of the 19 mm square and one frame's likelihoods at a
+/// random pose, the features in `corrupt` reporting a pose 8 mm away in x.
 fn setup(
     feats: &[Feat],
+    side: usize,
     settings: TrackSettings,
     corrupt: &[usize],
     seed: u64,
 ) -> (Tracker, Vec<Option<Vec<f64>>>) {
-    let poses: Vec<[f64; 2]> = (0..20)
-        .flat_map(|y| (0..20).map(move |x| [x as f64, y as f64]))
+    let step = 19.0 / (side - 1) as f64;
+    let poses: Vec<[f64; 2]> = (0..side)
+        .flat_map(|y| (0..side).map(move |x| [x as f64 * step, y as f64 * step]))
         .collect();
     let mut features = Vec::new();
     let mut ranges = Vec::new();
@@ -58,9 +68,11 @@ fn setup(
         });
         ranges.push((lo, w));
     }
-    // Group reliabilities for the splitting policy: larger groups more reliable.
+    // Group reliabilities for the splitting policy: larger groups more reliable (only for
+    // models small enough to list every group).
     let n = feats.len();
-    let group_errors: Vec<GroupError> = (1u32..1 << n)
+    let group_errors: Vec<GroupError> = (1u32..1 << n.min(10))
+        .filter(|_| n <= 10)
         .map(|m| GroupError {
             features: (0..n).filter(|j| m >> j & 1 == 1).collect(),
             error: 1.0 / f64::from(m.count_ones()),
@@ -153,7 +165,7 @@ fn bench(c: &mut Criterion) {
                 constructor,
                 ..TrackSettings::default()
             };
-            let (tracker, lik) = setup(feats, settings, &[], 2026);
+            let (tracker, lik) = setup(feats, 20, settings, &[], 2026);
             let id = BenchmarkId::new(name, format!("{constructor:?}").to_lowercase());
             bench_frame(&mut group, id, &tracker, &lik);
         }
@@ -164,7 +176,7 @@ fn bench(c: &mut Criterion) {
             constructor,
             ..TrackSettings::default()
         };
-        let (clean, clean_lik) = setup(&fine, open.clone(), &[], 2026);
+        let (clean, clean_lik) = setup(&fine, 20, open.clone(), &[], 2026);
         let level = clean
             .full_conflict_level(&clean_lik)
             .expect("one entry per feature");
@@ -177,7 +189,7 @@ fn bench(c: &mut Criterion) {
                 selection,
                 ..open.clone()
             };
-            let (tracker, lik) = setup(&fine, settings, &[0, 4], 2026);
+            let (tracker, lik) = setup(&fine, 20, settings, &[0, 4], 2026);
             let frame = tracker.track(&lik).expect("one entry per feature");
             assert!(
                 !frame.flags.excluded.is_empty() || frame.alternatives.len() > 1,
@@ -188,6 +200,51 @@ fn bench(c: &mut Criterion) {
                 format!("{constructor:?}").to_lowercase(),
             );
             bench_frame(&mut group, id, &tracker, &lik);
+        }
+    }
+    group.finish();
+    bench_scale(c);
+}
+
+/// 10,000 sample poses × 32 features of 3 states, every policy, threshold ∞ and finite.
+fn bench_scale(c: &mut Criterion) {
+    let d = 32;
+    let feats: Vec<Feat> = (0..d)
+        .map(|i| {
+            let a = (i as f64 * 180.0 / d as f64).to_radians();
+            Feat {
+                coef: [a.cos(), a.sin()],
+                states: 3,
+            }
+        })
+        .collect();
+    let open = TrackSettings::default();
+    let (clean, clean_lik) = setup(&feats, 100, open.clone(), &[], 2026);
+    let level = clean
+        .full_conflict_level(&clean_lik)
+        .expect("one entry per feature");
+    let mut group = c.benchmark_group("track_frame_32_features_10000_poses");
+    group.sample_size(10);
+    for (policy, selection) in [
+        ("largest", SelectionPolicy::LargestSubset),
+        ("lowest2", SelectionPolicy::LowestConflict { min_size: 2 }),
+        ("split2", SelectionPolicy::Splitting { min_size: 2 }),
+    ] {
+        for (name, threshold, corrupt) in [
+            ("inf_clean", ConflictLevel::Infinite, &[][..]),
+            (
+                "finite_faulty",
+                ConflictLevel::Finite(1.05 * level),
+                &[0, 16][..],
+            ),
+        ] {
+            let settings = TrackSettings {
+                conflict_threshold: threshold,
+                selection,
+                ..open.clone()
+            };
+            let (tracker, lik) = setup(&feats, 100, settings, corrupt, 2026);
+            bench_frame(&mut group, BenchmarkId::new(policy, name), &tracker, &lik);
         }
     }
     group.finish();

@@ -319,7 +319,8 @@ fn too_many_features_are_refused_before_anything_runs() {
     let scenario = dir.path().join("wide.toml");
     std::fs::write(
         &scenario,
-        "name = \"wide\"\n[features]\nsize_functions = { lines = 32 }\n[model]\nstates = 3\n",
+        "name = \"wide\"\nestimators = [\"evidential\", \"knn\"]\n[features]\n\
+         size_functions = { lines = 65 }\n[model]\nstates = 3\n",
     )
     .unwrap();
     let out = evitrack(&[
@@ -331,10 +332,30 @@ fn too_many_features_are_refused_before_anything_runs() {
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
-        stderr.contains("32 features") && stderr.contains("at most 16"),
+        stderr.contains("65 features") && stderr.contains("at most 64"),
         "{stderr}"
     );
     // Refused by the check: nothing was simulated or written.
+    assert!(!dir.path().join("wide").exists());
+    // Every method by default: the continuous tracker's own cap, and how to get past it.
+    std::fs::write(
+        &scenario,
+        "name = \"wide\"\n[features]\nsize_functions = { lines = 20 }\n[model]\nstates = 3\n",
+    )
+    .unwrap();
+    let out = evitrack(&[
+        "run",
+        scenario.to_str().unwrap(),
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("20 features, but the continuous tracker takes at most 16")
+            && stderr.contains("without \"continuous\" in `estimators`"),
+        "{stderr}"
+    );
     assert!(!dir.path().join("wide").exists());
 }
 

@@ -96,7 +96,7 @@ impl Evidential {
                 ..settings.track.clone()
             };
             let tracker = build_tracker(&frames, None, &[], &open)?;
-            let group_error = |mask: u32| -> Result<f64, EstimatorError> {
+            let group_error = |mask: crate::track::GroupMask| -> Result<f64, EstimatorError> {
                 let rows: Vec<Vec<Option<f64>>> = (validation.rows.iter())
                     .map(|row| {
                         (0..row.len())
@@ -125,7 +125,7 @@ impl Evidential {
                          use fewer features or another selection policy"
                     )));
                 }
-                for mask in 1u32..1 << n {
+                for mask in 1..1u64 << n {
                     if mask.count_ones() as usize >= min_size {
                         group_errors.push(GroupError {
                             features: (0..n).filter(|j| mask >> j & 1 == 1).collect(),

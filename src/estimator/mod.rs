@@ -15,7 +15,9 @@ mod knn;
 pub mod synthetic;
 
 pub use centre::{Centre, CentreSettings};
-pub use continuous::{Continuous, ContinuousSettings, SurrogateHyperparameters};
+pub use continuous::{
+    Continuous, ContinuousSettings, SurrogateHyperparameters, MAX_CONTINUOUS_FEATURES,
+};
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};

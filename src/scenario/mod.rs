@@ -13,7 +13,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
 use crate::estimator::{
-    ContinuousSettings, GpSettings, KnnSettings, Method, MAX_FEATURES_GROUP_ERRORS,
+    ContinuousSettings, GpSettings, KnnSettings, Method, MAX_CONTINUOUS_FEATURES,
+    MAX_FEATURES_GROUP_ERRORS,
 };
 use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
@@ -292,10 +293,11 @@ impl Scenario {
             self.continuous
                 .check()
                 .map_err(|e| invalid(format!("[continuous]: {e}")))?;
-            if features.len() > MAX_FEATURES {
+            if features.len() > MAX_CONTINUOUS_FEATURES {
                 return Err(invalid(format!(
                     "[features]: {} features, but the continuous tracker takes at most \
-                     {MAX_FEATURES}: use fewer size-function lines or drop the barycentre",
+                     {MAX_CONTINUOUS_FEATURES}: use fewer size-function lines, or list the methods \
+                     without \"continuous\" in `estimators`",
                     features.len()
                 )));
             }

@@ -5,7 +5,8 @@
 use std::collections::HashMap;
 
 use super::select::memoised_level;
-use super::tracker::{members, Tracker, Usable};
+use super::select::{members, GroupMask};
+use super::tracker::{Tracker, Usable};
 use crate::evidence::{conflict_level_all, Constructor, MassFunction, Subset};
 
 /// Two levels of conflict closer than this are a tie.
@@ -54,16 +55,16 @@ impl Tracker {
     /// memoised, with the prefix pruning of [`memoised_level`] under a finite `bound`.
     pub(super) fn level(
         &self,
-        group: u32,
+        group: GroupMask,
         usable: &[Option<Usable>],
-        memo: &mut HashMap<u32, f64>,
+        memo: &mut HashMap<GroupMask, f64>,
         bound: f64,
     ) -> f64 {
         memoised_level(memo, group, bound, || self.raw_level(group, usable))
     }
 
     /// Level of conflict of a group of at least two features on the cells, not memoised.
-    pub(super) fn raw_level(&self, group: u32, usable: &[Option<Usable>]) -> f64 {
+    pub(super) fn raw_level(&self, group: GroupMask, usable: &[Option<Usable>]) -> f64 {
         self.fast_level(group, usable)
             .unwrap_or_else(|| self.general_level(group, usable))
     }
@@ -72,7 +73,7 @@ impl Tracker {
     /// pignistic estimator need them).
     pub(super) fn on_cells(
         &self,
-        group: u32,
+        group: GroupMask,
         usable: &[Option<Usable>],
     ) -> Option<Vec<MassFunction>> {
         members(group)
@@ -85,14 +86,14 @@ impl Tracker {
     }
 
     /// Reference: Dempster's rule on the cells.
-    fn general_level(&self, group: u32, usable: &[Option<Usable>]) -> f64 {
+    fn general_level(&self, group: GroupMask, usable: &[Option<Usable>]) -> f64 {
         self.on_cells(group, usable)
             .and_then(|fs| conflict_level_all(&fs).ok())
             .unwrap_or(f64::INFINITY)
     }
 
     /// Fast exact level of conflict of a group; `None` when the general path must be used.
-    fn fast_level(&self, group: u32, usable: &[Option<Usable>]) -> Option<f64> {
+    fn fast_level(&self, group: GroupMask, usable: &[Option<Usable>]) -> Option<f64> {
         let ms: Vec<(usize, &Usable)> = members(group)
             .filter_map(|i| usable[i].as_ref().map(|u| (i, u)))
             .collect();
@@ -302,7 +303,7 @@ mod tests {
                         })
                         .collect();
                     let (usable, _) = t.measure(&lik).unwrap();
-                    for group in 1u32..32 {
+                    for group in 1..32 {
                         let general = t.general_level(group, &usable);
                         let fast = t.fast_level(group, &usable).unwrap();
                         if general.is_finite() {

@@ -2,6 +2,7 @@
 //! their pignistic probability), the estimator (weighted mean or MAP) and the uncertainty
 //! (weighted spread and quantile radius).
 
+use super::select::GroupMask;
 use super::settings::Estimator;
 use super::tracker::{Tracker, Uncertainty, Usable};
 use crate::evidence::{dempster_all, MassFunction};
@@ -9,7 +10,7 @@ use crate::evidence::{dempster_all, MassFunction};
 impl Tracker {
     /// Relative plausibility of the sample poses under a group: the normalised product of the
     /// members' contours (the fast path; equal to the relative plausibility of the combination).
-    fn plausibility(&self, group: u32, usable: &[Option<Usable>]) -> Option<Vec<f64>> {
+    fn plausibility(&self, group: GroupMask, usable: &[Option<Usable>]) -> Option<Vec<f64>> {
         let cells = self.cell_count();
         let mut w = vec![1.0; cells];
         for (u, wu) in w.iter_mut().enumerate() {
@@ -72,7 +73,7 @@ impl Tracker {
     /// Estimate, weights and uncertainty of one group.
     pub(super) fn estimate_group(
         &self,
-        group: u32,
+        group: GroupMask,
         usable: &[Option<Usable>],
     ) -> Option<([f64; 2], Vec<f64>, Uncertainty)> {
         let pl = self.plausibility(group, usable)?;
@@ -95,7 +96,10 @@ impl Tracker {
     /// alternatives, without a validation error for each, or when the discounted alternatives
     /// are in total conflict (the caller then reports the first alternative, as without
     /// reliabilities). The pignistic estimator reads the combined contour as its probability.
-    pub(super) fn weigh_alternatives(&self, alternatives: &[(u32, Vec<f64>)]) -> Option<Weighed> {
+    pub(super) fn weigh_alternatives(
+        &self,
+        alternatives: &[(GroupMask, Vec<f64>)],
+    ) -> Option<Weighed> {
         if alternatives.len() < 2 {
             return None;
         }

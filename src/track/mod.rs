@@ -15,7 +15,7 @@ mod threshold;
 mod tracker;
 
 pub use model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
-pub use select::{select_group, GroupLevels, Selection};
+pub use select::{members, select_group, GroupLevels, GroupMask, Selection};
 pub use settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
 pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};

@@ -4,9 +4,9 @@
 use super::TrackError;
 use crate::evidence::Refining;
 
-/// Largest number of features a tracker accepts (groups are bit masks and compatible groups are
-/// enumerated exhaustively, which stays cheap up to here).
-pub const MAX_FEATURES: usize = 16;
+/// Largest number of features a tracker accepts (groups are 64-bit masks; the selection's search
+/// follows the conflict graph, so its cost does not double with every feature).
+pub const MAX_FEATURES: usize = 64;
 
 /// One feature of the model: its refining Θᵢ → Q̃ and, optionally, its validation error (mm), used
 /// to pick the fallback feature.
@@ -35,7 +35,7 @@ impl GroupError {
     ///
     /// # Errors
     /// What is wrong, as a sentence.
-    pub fn check(&self, n_features: usize) -> Result<u32, String> {
+    pub fn check(&self, n_features: usize) -> Result<super::GroupMask, String> {
         if self.features.is_empty() || self.features.windows(2).any(|w| w[0] >= w[1]) {
             return Err("features must be a non-empty ascending list".into());
         }
@@ -45,7 +45,10 @@ impl GroupError {
         if !(self.error.is_finite() && self.error >= 0.0) {
             return Err(format!("error {} is not finite and ≥ 0", self.error));
         }
-        Ok(self.features.iter().fold(0u32, |m, &i| m | 1 << i))
+        Ok(self
+            .features
+            .iter()
+            .fold(0, |m: super::GroupMask, &i| m | 1 << i))
     }
 }
 
@@ -55,7 +58,7 @@ pub struct TrackerModel {
     poses: Vec<[f64; 2]>,
     features: Vec<TrackedFeature>,
     /// Validation error of each group, by mask (empty when not learned).
-    group_errors: std::collections::HashMap<u32, f64>,
+    group_errors: std::collections::HashMap<super::GroupMask, f64>,
 }
 
 impl TrackerModel {
@@ -125,7 +128,7 @@ impl TrackerModel {
     }
 
     /// The validation error of a group (by mask), when learned.
-    pub(super) fn group_error(&self, mask: u32) -> Option<f64> {
+    pub(super) fn group_error(&self, mask: super::GroupMask) -> Option<f64> {
         self.group_errors.get(&mask).copied()
     }
 

@@ -4,22 +4,31 @@
 //!
 //! The policies see the features only through [`GroupLevels`], so that every evidential tracker
 //! (the paper's on cells, the continuous one on poses) selects its groups by the same rules.
+//!
+//! No policy lists every complete subgraph (2^n of them for a complete graph of n features): the
+//! maximal cliques come from Bron–Kerbosch with pivoting, and the searches below them walk the
+//! cliques depth first in lexicographic order, pruned by size and by Theorem 4.3 (a group's level
+//! only grows as features are added), so the levels computed follow what the policy needs.
 
+use std::cmp::Ordering;
 use std::collections::HashMap;
 
 use super::conflict::TIE;
 use super::settings::SelectionPolicy;
-use super::tracker::{lex, Tracker, Usable};
+use super::tracker::{Tracker, Usable};
 use crate::evidence::ConflictLevel;
+
+/// A group of features as a bit mask: bit `i` is feature `i`.
+pub type GroupMask = u64;
 
 /// The outcome of group selection for one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Selection {
     /// Level of conflict and mask of the chosen group (`None` only without a usable feature).
-    pub chosen: Option<(f64, u32)>,
+    pub chosen: Option<(f64, GroupMask)>,
     /// Levels and masks of the splitting policy's alternatives, the chosen one first (empty for
     /// the other policies and on fallback).
-    pub alternatives: Vec<(f64, u32)>,
+    pub alternatives: Vec<(f64, GroupMask)>,
     /// No eligible group existed: the chosen group is the fallback feature alone.
     pub fallback: bool,
 }
@@ -30,9 +39,50 @@ pub trait GroupLevels {
     fn pair_level(&mut self, i: usize, j: usize) -> f64;
     /// Level of conflict of a group of at least two usable features; it may only grow as
     /// features are added (Theorem 4.3), which the selection uses to prune.
-    fn group_level(&mut self, group: u32) -> f64;
+    fn group_level(&mut self, group: GroupMask) -> f64;
     /// The feature combined alone when no group is eligible.
     fn fallback_feature(&self) -> Option<usize>;
+    /// Whether a group whose level is beyond a bound proves every larger group beyond it
+    /// (levels computed by combination do, up to rounding; a level found by a local fit may
+    /// not). Without it, the selection lists every complete subgraph, as the paper's §4.1 does.
+    fn levels_grow_exactly(&self) -> bool {
+        true
+    }
+}
+
+/// Feature indices of a group mask, ascending.
+pub fn members(mut mask: GroupMask) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            i
+        })
+    })
+}
+
+/// Feature indices of a group mask, ascending (also its lexicographic key).
+pub(crate) fn lex(mask: GroupMask) -> Vec<usize> {
+    members(mask).collect()
+}
+
+/// Compares two groups as their ascending lists of feature indices, without building the lists.
+pub(crate) fn lex_cmp(a: GroupMask, b: GroupMask) -> Ordering {
+    let differ = a ^ b;
+    if differ == 0 {
+        return Ordering::Equal;
+    }
+    // Below the lowest differing feature both lists agree; the group holding that feature is
+    // the smaller unless the other one ends there.
+    let low = differ.trailing_zeros();
+    let a_holds = a >> low & 1 == 1;
+    let other = if a_holds { b } else { a };
+    let holder_is_smaller = low < 63 && other >> (low + 1) != 0;
+    if a_holds == holder_is_smaller {
+        Ordering::Less
+    } else {
+        Ordering::Greater
+    }
 }
 
 /// A group's level (0 for one feature), memoised in `memo`. With a finite `bound`, a group whose
@@ -40,8 +90,8 @@ pub trait GroupLevels {
 /// combined: K only grows as features are added (Theorem 4.3), so it cannot be below the bound;
 /// it is recorded as +∞.
 pub(super) fn memoised_level(
-    memo: &mut HashMap<u32, f64>,
-    group: u32,
+    memo: &mut HashMap<GroupMask, f64>,
+    group: GroupMask,
     bound: f64,
     compute: impl FnOnce() -> f64,
 ) -> f64 {
@@ -51,7 +101,7 @@ pub(super) fn memoised_level(
     if let Some(&k) = memo.get(&group) {
         return k;
     }
-    let parent = group & !(1u32 << (31 - group.leading_zeros()));
+    let parent = group & !(1 << (63 - group.leading_zeros()));
     let k = match memo.get(&parent) {
         Some(&kp) if kp.is_nan() || kp > bound + TIE => f64::INFINITY,
         _ => compute(),
@@ -65,25 +115,352 @@ pub(super) fn memoised_level(
 /// fallback feature. A group is eligible when its own level is within `threshold`, the quantity
 /// §4.3 learns it from; the graph's pairwise test is the necessary condition (Theorem 4.3: K only
 /// grows as features are added), which prunes the candidates.
+///
+/// Ties: the largest-subset policy keeps the first group in lexicographic order unless a later
+/// one of the same size is lower by more than 1e-12; the lowest-conflict policy takes, among the
+/// groups within 1e-12 of the lowest level, the largest, then the first in lexicographic order;
+/// the splitting policy's alternatives are the maximal eligible groups.
 pub fn select_group(
     levels: &mut impl GroupLevels,
     features: usize,
-    usable_mask: u32,
+    usable_mask: GroupMask,
     policy: SelectionPolicy,
     threshold: ConflictLevel,
 ) -> Selection {
-    let f = features;
-    let adj = conflict_graph(levels, f, usable_mask, threshold);
-    let groups = cliques(usable_mask, &adj, f);
-    let mut memo: HashMap<u32, f64> = HashMap::new();
+    let exhaustive = !levels.levels_grow_exactly();
+    choose(levels, features, usable_mask, policy, threshold, exhaustive)
+}
+
+/// [`select_group`] by the pruned search, or with `exhaustive` over every complete subgraph.
+fn choose(
+    levels: &mut impl GroupLevels,
+    features: usize,
+    usable_mask: GroupMask,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+    exhaustive: bool,
+) -> Selection {
+    let adj = conflict_graph(levels, features, usable_mask, threshold);
+    let (mut chosen, mut alternatives) = if exhaustive {
+        every_clique(levels, &adj, usable_mask, policy, threshold)
+    } else {
+        let mut search = Search {
+            levels: &mut *levels,
+            adj,
+            memo: HashMap::new(),
+            threshold,
+        };
+        match policy {
+            SelectionPolicy::LargestSubset => (search.largest(usable_mask), Vec::new()),
+            SelectionPolicy::LowestConflict { min_size } => {
+                (search.lowest(usable_mask, min_size), Vec::new())
+            }
+            SelectionPolicy::Splitting { min_size } => {
+                let alternatives = search.maximal_eligible(usable_mask, min_size);
+                (alternatives.first().copied(), alternatives)
+            }
+        }
+    };
+    let fallback = chosen.is_none();
+    if fallback {
+        alternatives.clear();
+        chosen = levels.fallback_feature().map(|i| (0.0, 1 << i));
+    }
+    Selection {
+        chosen,
+        alternatives,
+        fallback,
+    }
+}
+
+/// A chosen group and the splitting policy's alternatives, each with its level.
+type Choice = (Option<(f64, GroupMask)>, Vec<(f64, GroupMask)>);
+
+/// The splitting policy's order: decreasing size, then increasing level, then feature list.
+fn sort_alternatives(alternatives: &mut [(f64, GroupMask)]) {
+    alternatives.sort_by(|a, b| {
+        b.1.count_ones()
+            .cmp(&a.1.count_ones())
+            .then(a.0.total_cmp(&b.0))
+            .then(lex_cmp(a.1, b.1))
+    });
+}
+
+/// The conflict graph of a frame: per feature, the mask of the usable features whose pairwise
+/// level of conflict with it is finite and within the threshold.
+fn conflict_graph(
+    levels: &mut impl GroupLevels,
+    f: usize,
+    usable_mask: GroupMask,
+    threshold: ConflictLevel,
+) -> Vec<GroupMask> {
+    let mut adj = vec![0; f];
+    for i in members(usable_mask) {
+        for j in members(usable_mask & !((2 << i) - 1)) {
+            if threshold.admits(levels.pair_level(i, j)) {
+                adj[i] |= 1 << j;
+                adj[j] |= 1 << i;
+            }
+        }
+    }
+    adj
+}
+
+/// The maximal cliques among `p` (Bron–Kerbosch with Tomita's pivot), in no particular order.
+fn maximal_cliques(p: GroupMask, adj: &[GroupMask]) -> Vec<GroupMask> {
+    fn extend(
+        r: GroupMask,
+        mut p: GroupMask,
+        mut x: GroupMask,
+        adj: &[GroupMask],
+        out: &mut Vec<GroupMask>,
+    ) {
+        if p == 0 {
+            if x == 0 {
+                out.push(r);
+            }
+            return;
+        }
+        let pivot = members(p | x)
+            .max_by_key(|&u| (p & adj[u]).count_ones())
+            .unwrap_or(0);
+        for v in members(p & !adj[pivot]) {
+            extend(r | 1 << v, p & adj[v], x & adj[v], adj, out);
+            p &= !(1 << v);
+            x |= 1 << v;
+        }
+    }
+    let mut out = Vec::new();
+    extend(0, p, 0, adj, &mut out);
+    out
+}
+
+/// One frame's selection: the conflict graph and the group levels computed so far.
+struct Search<'a, L: GroupLevels> {
+    levels: &'a mut L,
+    adj: Vec<GroupMask>,
+    memo: HashMap<GroupMask, f64>,
+    threshold: ConflictLevel,
+}
+
+impl<L: GroupLevels> Search<'_, L> {
+    /// A group's level, 0 for one feature, memoised.
+    fn level(&mut self, group: GroupMask) -> f64 {
+        if group.count_ones() <= 1 {
+            return 0.0;
+        }
+        if let Some(&k) = self.memo.get(&group) {
+            return k;
+        }
+        let k = self.levels.group_level(group);
+        self.memo.insert(group, k);
+        k
+    }
+
+    /// Whether no group containing one of level `k` can have a level within `bound`: K only
+    /// grows as features are added (Theorem 4.3); the slack absorbs rounding.
+    fn beyond(k: f64, bound: f64) -> bool {
+        !(k.is_finite() && k <= bound + TIE)
+    }
+
+    /// Walks the cliques that extend `group` by the features of `candidates` (each adjacent to
+    /// every member, above its highest), depth first in lexicographic order; `visit(group,
+    /// candidates)` says whether to go below a clique.
+    fn walk<V>(&mut self, group: GroupMask, candidates: GroupMask, visit: &mut V)
+    where
+        V: FnMut(&mut Self, GroupMask, GroupMask) -> bool,
+    {
+        let mut rest = candidates;
+        while rest != 0 {
+            let j = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            let (next, below) = (group | 1 << j, rest & self.adj[j]);
+            if visit(self, next, below) {
+                self.walk(next, below, visit);
+            }
+        }
+    }
+
+    /// Of `groups` (in lexicographic order), the first eligible one unless a later one is lower
+    /// by more than the tie margin.
+    fn first_lowest(&mut self, groups: &[GroupMask]) -> Option<(f64, GroupMask)> {
+        let mut chosen: Option<(f64, GroupMask)> = None;
+        for &g in groups {
+            let k = self.level(g);
+            if self.threshold.admits(k) && chosen.is_none_or(|(best, _)| k < best - TIE) {
+                chosen = Some((k, g));
+            }
+        }
+        chosen
+    }
+
+    /// The largest eligible group. The maximum cliques come first (for a complete graph, the
+    /// one group of every feature): when none is eligible, a branch and bound over the cliques
+    /// finds the largest eligible size.
+    fn largest(&mut self, usable: GroupMask) -> Option<(f64, GroupMask)> {
+        if usable.count_ones() == 1 {
+            return Some((0.0, usable));
+        }
+        let maximal = maximal_cliques(usable, &self.adj);
+        let omega = maximal.iter().map(|g| g.count_ones()).max().unwrap_or(0);
+        // A single feature while several are usable means no pair is compatible.
+        if omega < 2 {
+            return None;
+        }
+        let mut top: Vec<GroupMask> = maximal
+            .into_iter()
+            .filter(|g| g.count_ones() == omega)
+            .collect();
+        top.sort_by(|&a, &b| lex_cmp(a, b));
+        if let Some(chosen) = self.first_lowest(&top) {
+            return Some(chosen);
+        }
+        let bound = self.threshold.value();
+        let (mut size, mut found) = (1, Vec::new());
+        self.walk(0, usable, &mut |s, g, candidates| {
+            let n = g.count_ones();
+            if n + candidates.count_ones() < size {
+                return false;
+            }
+            if n < 2 {
+                return true;
+            }
+            let k = s.level(g);
+            if Self::beyond(k, bound) {
+                return false;
+            }
+            if n >= size && s.threshold.admits(k) {
+                if n > size {
+                    size = n;
+                    found.clear();
+                }
+                found.push(g);
+            }
+            true
+        });
+        self.first_lowest(&found)
+    }
+
+    /// The eligible group of at least `min_size` features with the lowest level; ties within the
+    /// margin go to the larger group, then to the lexicographically first.
+    fn lowest(&mut self, usable: GroupMask, min_size: usize) -> Option<(f64, GroupMask)> {
+        let m = min_size.max(1) as u32;
+        let bound = self.threshold.value();
+        // K only grows, so the lowest level is a group of exactly `m` features.
+        let mut lowest: Option<f64> = None;
+        self.walk(0, usable, &mut |s, g, candidates| {
+            let n = g.count_ones();
+            if n + candidates.count_ones() < m {
+                return false;
+            }
+            let k = s.level(g);
+            if Self::beyond(k, lowest.map_or(bound, |l| l.min(bound))) {
+                return false;
+            }
+            if n == m && s.threshold.admits(k) && lowest.is_none_or(|l| k < l) {
+                lowest = Some(k);
+            }
+            n < m
+        });
+        let lowest = lowest?;
+        let mut chosen: Option<(f64, GroupMask)> = None;
+        self.walk(0, usable, &mut |s, g, candidates| {
+            let n = g.count_ones();
+            let size = chosen.map_or(m - 1, |(_, c)| c.count_ones());
+            if n + candidates.count_ones() <= size {
+                return false;
+            }
+            let k = s.level(g);
+            if Self::beyond(k, lowest + TIE) {
+                return false;
+            }
+            if n > size && k <= lowest + TIE && s.threshold.admits(k) {
+                chosen = Some((k, g));
+            }
+            true
+        });
+        chosen
+    }
+
+    /// The splitting policy's alternatives: the maximal eligible groups of at least `min_size`
+    /// features, by decreasing size, then increasing level, then feature list.
+    fn maximal_eligible(&mut self, usable: GroupMask, min_size: usize) -> Vec<(f64, GroupMask)> {
+        let m = min_size.max(1) as u32;
+        let bound = self.threshold.value();
+        // An eligible maximal clique is a maximal eligible group; below the others, search.
+        let mut found: Vec<GroupMask> = Vec::new();
+        for g in maximal_cliques(usable, &self.adj) {
+            if g.count_ones() >= m && self.threshold.admits(self.level(g)) {
+                found.push(g);
+            }
+        }
+        self.walk(0, usable, &mut |s, g, candidates| {
+            let n = g.count_ones();
+            let reach = g | candidates;
+            if n + candidates.count_ones() < m || found.iter().any(|&f| reach & f == reach) {
+                return false;
+            }
+            let k = s.level(g);
+            if Self::beyond(k, bound) {
+                return false;
+            }
+            if n >= m && s.threshold.admits(k) {
+                found.push(g);
+            }
+            true
+        });
+        // Largest first, so that a group inside an accepted one is seen after it.
+        found.sort_by(|&a, &b| b.count_ones().cmp(&a.count_ones()).then(lex_cmp(b, a)));
+        let mut alternatives: Vec<(f64, GroupMask)> = Vec::new();
+        for g in found {
+            if !alternatives.iter().any(|&(_, a)| g & a == g) {
+                alternatives.push((self.level(g), g));
+            }
+        }
+        sort_alternatives(&mut alternatives);
+        alternatives
+    }
+}
+
+/// Every complete subgraph, by increasing size, lexicographic within a size (the old code).
+fn all_cliques(usable: GroupMask, adj: &[GroupMask]) -> Vec<GroupMask> {
+    let mut all: Vec<GroupMask> = members(usable).map(|i| 1 << i).collect();
+    let mut start = 0;
+    while start < all.len() {
+        let end = all.len();
+        for g in start..end {
+            let group = all[g];
+            let top = 63 - group.leading_zeros() as usize;
+            for (j, &aj) in adj.iter().enumerate().skip(top + 1) {
+                if usable >> j & 1 == 1 && aj & group == group {
+                    all.push(group | 1 << j);
+                }
+            }
+        }
+        start = end;
+    }
+    all
+}
+
+/// The chosen group and alternatives over every complete subgraph, by increasing size
+/// (exponential in the number of features): for level functions that may not grow exactly, and
+/// the search's reference.
+fn every_clique(
+    levels: &mut impl GroupLevels,
+    adj: &[GroupMask],
+    usable_mask: GroupMask,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+) -> Choice {
+    let groups = all_cliques(usable_mask, adj);
+    let mut memo: HashMap<GroupMask, f64> = HashMap::new();
     let mut level =
-        |g: u32, bound: f64| memoised_level(&mut memo, g, bound, || levels.group_level(g));
+        |g: GroupMask, bound: f64| memoised_level(&mut memo, g, bound, || levels.group_level(g));
     let min_size = policy.min_size();
-    let mut chosen: Option<(f64, u32)> = None;
-    let mut alternatives: Vec<(f64, u32)> = Vec::new();
+    let mut chosen: Option<(f64, GroupMask)> = None;
+    let mut alternatives: Vec<(f64, GroupMask)> = Vec::new();
     match policy {
         SelectionPolicy::LargestSubset => {
-            // Groups come by increasing size in lexicographic order: scan from the largest.
             let mut size = groups.last().map_or(0, |g| g.count_ones());
             while size >= 1 && chosen.is_none() {
                 for &g in groups.iter().filter(|g| g.count_ones() == size) {
@@ -94,7 +471,6 @@ pub fn select_group(
                 }
                 size -= 1;
             }
-            // A single feature while several are usable means no pair is compatible.
             if chosen.is_some_and(|(_, g)| g.count_ones() == 1) && usable_mask.count_ones() > 1 {
                 chosen = None;
             }
@@ -133,45 +509,11 @@ pub fn select_group(
                     alternatives.push((k, g));
                 }
             }
-            alternatives.sort_by(|a, b| {
-                b.1.count_ones()
-                    .cmp(&a.1.count_ones())
-                    .then(a.0.total_cmp(&b.0))
-                    .then(lex(a.1).cmp(&lex(b.1)))
-            });
+            sort_alternatives(&mut alternatives);
             chosen = alternatives.first().copied();
         }
     }
-    let fallback = chosen.is_none();
-    if fallback {
-        alternatives.clear();
-        chosen = levels.fallback_feature().map(|i| (0.0, 1u32 << i));
-    }
-    Selection {
-        chosen,
-        alternatives,
-        fallback,
-    }
-}
-
-/// The conflict graph of a frame: per feature, the mask of the usable features whose pairwise
-/// level of conflict with it is finite and within the threshold.
-fn conflict_graph(
-    levels: &mut impl GroupLevels,
-    f: usize,
-    usable_mask: u32,
-    threshold: ConflictLevel,
-) -> Vec<u32> {
-    let mut adj = vec![0u32; f];
-    for i in (0..f).filter(|i| usable_mask >> i & 1 == 1) {
-        for j in (i + 1..f).filter(|j| usable_mask >> j & 1 == 1) {
-            if threshold.admits(levels.pair_level(i, j)) {
-                adj[i] |= 1 << j;
-                adj[j] |= 1 << i;
-            }
-        }
-    }
-    adj
+    (chosen, alternatives)
 }
 
 /// The paper's tracker seen by the selection: its cells, pairwise and group levels.
@@ -188,7 +530,7 @@ impl GroupLevels for CellLevels<'_> {
         }
     }
 
-    fn group_level(&mut self, group: u32) -> f64 {
+    fn group_level(&mut self, group: GroupMask) -> f64 {
         self.tracker.raw_level(group, self.usable)
     }
 
@@ -199,7 +541,7 @@ impl GroupLevels for CellLevels<'_> {
 
 impl Tracker {
     /// Choose the group to combine among the usable features (`usable_mask`, not empty).
-    pub(super) fn select(&self, usable: &[Option<Usable>], usable_mask: u32) -> Selection {
+    pub(super) fn select(&self, usable: &[Option<Usable>], usable_mask: GroupMask) -> Selection {
         let mut levels = CellLevels {
             tracker: self,
             usable,
@@ -227,46 +569,6 @@ impl Tracker {
     }
 }
 
-/// All complete subgraphs among the usable features, grown bottom-up: the groups of size d + 1 are
-/// the groups of size d extended by a higher-indexed feature adjacent to all their members.
-/// Returned by increasing size, lexicographic within a size.
-fn cliques(usable: u32, adj: &[u32], f: usize) -> Vec<u32> {
-    let mut all: Vec<u32> = (0..f)
-        .filter(|&i| usable >> i & 1 == 1)
-        .map(|i| 1u32 << i)
-        .collect();
-    let mut start = 0;
-    while start < all.len() {
-        let end = all.len();
-        for g in start..end {
-            let group = all[g];
-            let top = 31 - group.leading_zeros() as usize;
-            for (j, &aj) in adj.iter().enumerate().take(f).skip(top + 1) {
-                if usable >> j & 1 == 1 && aj & group == group {
-                    all.push(group | 1 << j);
-                }
-            }
-        }
-        start = end;
-    }
-    all
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn cliques_grow_bottom_up() {
-        // Triangle 0-1-2 plus edge 2-3.
-        let adj = [0b0110, 0b0101, 0b1011, 0b0100];
-        let g = cliques(0b1111, &adj, 4);
-        assert_eq!(
-            g,
-            vec![0b0001, 0b0010, 0b0100, 0b1000, 0b0011, 0b0101, 0b0110, 0b1100, 0b0111]
-        );
-        // Without feature 1 usable.
-        let g = cliques(0b1101, &adj, 4);
-        assert_eq!(g, vec![0b0001, 0b0100, 0b1000, 0b0101, 0b1100]);
-    }
-}
+#[path = "select_tests.rs"]
+mod tests;

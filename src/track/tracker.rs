@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 use super::cells::Cells;
 use super::estimate::Weighed;
 use super::model::TrackerModel;
-use super::select::Selection;
+use super::select::{lex, GroupMask, Selection};
 use super::settings::{CheckedTrackSettings, TrackSettings};
 use super::TrackError;
 use crate::evidence::{
@@ -329,7 +329,7 @@ impl Tracker {
             .iter()
             .enumerate()
             .filter(|(_, u)| u.is_some())
-            .fold(0u32, |m, (i, _)| m | 1 << i);
+            .fold(0, |m: GroupMask, (i, _)| m | 1 << i);
         Ok(self.level(all, &usable, &mut HashMap::new(), f64::INFINITY))
     }
 
@@ -347,7 +347,7 @@ impl Tracker {
         };
         let usable_mask = (0..f)
             .filter(|&i| usable[i].is_some())
-            .fold(0u32, |m, i| m | 1 << i);
+            .fold(0, |m: GroupMask, i| m | 1 << i);
         if usable_mask == 0 {
             flags.no_usable_feature = true;
             return Ok(FrameEstimate::without_estimate(flags));
@@ -395,7 +395,9 @@ impl Tracker {
                 for (a, r) in alts.iter_mut().zip(reliability) {
                     a.reliability = Some(r);
                 }
-                let union = alt_plausibility.iter().fold(0u32, |m, (g, _)| m | g);
+                let union = alt_plausibility
+                    .iter()
+                    .fold(0, |m: GroupMask, (g, _)| m | g);
                 (Some((estimate, pl, uncertainty)), union, level)
             }
             // The chosen group is the first alternative when there are any: estimated already.
@@ -419,16 +421,6 @@ impl Tracker {
             flags,
         })
     }
-}
-
-/// Feature indices of a group mask, ascending (also its lexicographic key).
-pub(super) fn lex(mask: u32) -> Vec<usize> {
-    members(mask).collect()
-}
-
-/// Feature indices of a group mask, ascending.
-pub(super) fn members(mask: u32) -> impl Iterator<Item = usize> {
-    (0..32).filter(move |i| mask >> i & 1 == 1)
 }
 
 #[cfg(test)]

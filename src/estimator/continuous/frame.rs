@@ -7,7 +7,8 @@
 use std::collections::HashMap;
 
 use super::Continuous;
-use crate::track::{select_group, GroupLevels, Selection};
+pub(super) use crate::track::members;
+use crate::track::{select_group, GroupLevels, GroupMask, Selection};
 
 /// Most Levenberg–Marquardt iterations per group.
 const MAX_ITERATIONS: usize = 40;
@@ -30,8 +31,8 @@ pub(super) struct Frame<'a> {
     model: &'a Continuous,
     /// Each feature's value; `None` when it is not usable.
     values: Vec<Option<f64>>,
-    pub(super) usable_mask: u32,
-    fits: HashMap<u32, GroupFit>,
+    pub(super) usable_mask: GroupMask,
+    fits: HashMap<GroupMask, GroupFit>,
     /// z_i² at every sample pose for the usable features (sample-major, one per feature).
     sample_z2: Vec<f64>,
 }
@@ -42,7 +43,7 @@ impl<'a> Frame<'a> {
         let d = values.len();
         let usable_mask = (0..d)
             .filter(|&i| values[i].is_some())
-            .fold(0u32, |m, i| m | 1 << i);
+            .fold(0, |m: GroupMask, i| m | 1 << i);
         let inv_sigma: Vec<f64> = model.file.residual_scales.iter().map(|s| 1.0 / s).collect();
         let mut sample_z2 = vec![0.0; model.sample_values.len()];
         for (z2, f) in sample_z2
@@ -68,7 +69,7 @@ impl<'a> Frame<'a> {
     /// Σ_{i∈group} z_i² at pose `q`, with the Jacobian rows of the z_i when asked.
     fn chi2_at(
         &self,
-        group: u32,
+        group: GroupMask,
         q: [f64; 2],
         rows: Option<&mut Vec<[f64; 2]>>,
     ) -> (f64, Vec<f64>) {
@@ -99,12 +100,12 @@ impl<'a> Frame<'a> {
     }
 
     /// Σ_{i∈group} z_i² at pose `q`.
-    pub(super) fn chi2_of(&self, group: u32, q: [f64; 2]) -> f64 {
+    pub(super) fn chi2_of(&self, group: GroupMask, q: [f64; 2]) -> f64 {
         self.chi2_at(group, q, None).0
     }
 
     /// The sample pose with the lowest χ² of `group`, and that χ².
-    fn best_sample(&self, group: u32) -> ([f64; 2], f64) {
+    fn best_sample(&self, group: GroupMask) -> ([f64; 2], f64) {
         let d = self.values.len();
         let mut best = (0, f64::INFINITY);
         for (k, z2) in self.sample_z2.chunks_exact(d).enumerate() {
@@ -117,7 +118,7 @@ impl<'a> Frame<'a> {
     }
 
     /// The memoised fit of `group` (usable features only, at least one).
-    pub(super) fn fit(&mut self, group: u32) -> GroupFit {
+    pub(super) fn fit(&mut self, group: GroupMask) -> GroupFit {
         if let Some(fit) = self.fits.get(&group) {
             return *fit;
         }
@@ -137,7 +138,7 @@ impl<'a> Frame<'a> {
     }
 
     /// Minimises Σ z_i² from `start`, kept inside the sample poses' bounding box.
-    fn levenberg_marquardt(&self, group: u32, start: [f64; 2]) -> GroupFit {
+    fn levenberg_marquardt(&self, group: GroupMask, start: [f64; 2]) -> GroupFit {
         let (lo, hi) = self.model.bounds;
         let clamp = |q: [f64; 2]| [q[0].clamp(lo[0], hi[0]), q[1].clamp(lo[1], hi[1])];
         let mut q = clamp(start);
@@ -206,8 +207,13 @@ impl GroupLevels for Frame<'_> {
         self.own_level(i).max(self.own_level(j))
     }
 
-    fn group_level(&mut self, group: u32) -> f64 {
+    fn group_level(&mut self, group: GroupMask) -> f64 {
         0.5 * self.fit(group).chi2
+    }
+
+    /// A fit may stop in a local minimum, so a group's level can come out above a larger one's.
+    fn levels_grow_exactly(&self) -> bool {
+        false
     }
 
     fn fallback_feature(&self) -> Option<usize> {
@@ -245,9 +251,4 @@ pub(super) fn solve2(a: [[f64; 2]; 2], b: [f64; 2]) -> Option<[f64; 2]> {
         (a[0][0] * b[1] - a[1][0] * b[0]) / det,
     ];
     x.iter().all(|v| v.is_finite()).then_some(x)
-}
-
-/// Feature indices of a group mask, ascending.
-pub(super) fn members(mask: u32) -> impl Iterator<Item = usize> {
-    (0..32).filter(move |i| mask >> i & 1 == 1)
 }

@@ -15,7 +15,7 @@
 //! {q : Pl(q)/Pl(q̂) ≥ α} is reported as the ellipse of the contour's curvature there.
 //!
 //! Behaviour worth knowing: sample rows with a missing value are dropped; a frame's missing or
-//! non-finite features take no part; at most [`MAX_FEATURES`] features (groups are bit masks).
+//! non-finite features take no part; at most [`MAX_CONTINUOUS_FEATURES`] features (groups are bit masks).
 //! A frame whose chosen group cannot fix a pose (one feature: a level curve, not a point) has no
 //! bounded region (`region` and `uncertainty_radius` are `None`).
 
@@ -28,6 +28,11 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 pub use surrogate::SurrogateHyperparameters;
+
+/// Largest number of features the continuous tracker takes: its group levels come from local
+/// fits, which may not grow exactly as features are added, so its selection lists every complete
+/// subgraph (2^n of them).
+pub const MAX_CONTINUOUS_FEATURES: usize = 16;
 
 use super::bounding_box;
 use super::centre::{
@@ -42,7 +47,7 @@ use crate::evidence::ConflictLevel;
 use crate::features::FeatureConfig;
 use crate::model::{ModelError, Provenance};
 use crate::report::distance;
-use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule, MAX_FEATURES};
+use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
 use frame::{members, Frame};
 use surrogate::{fit_hyperparameters, Surrogate};
 
@@ -180,15 +185,15 @@ impl Continuous {
     /// Fits on `data` (see the module documentation).
     ///
     /// # Errors
-    /// Invalid settings, more than [`MAX_FEATURES`] features, an inconsistent training set, no
+    /// Invalid settings, more than [`MAX_CONTINUOUS_FEATURES`] features, an inconsistent training set, no
     /// complete sample, or a kernel matrix that stays singular.
     pub fn fit(settings: &ContinuousSettings, data: &TrainingSet) -> Result<Self, EstimatorError> {
         settings.check()?;
         check_training(data)?;
         let dim = data.feature_names.len();
-        if dim > MAX_FEATURES {
+        if dim > MAX_CONTINUOUS_FEATURES {
             return Err(EstimatorError::Training(format!(
-                "{dim} features, but the continuous tracker takes at most {MAX_FEATURES}"
+                "{dim} features, but the continuous tracker takes at most {MAX_CONTINUOUS_FEATURES}"
             )));
         }
         let (poses, rows) = kept_samples(data, "the continuous tracker")?;
@@ -430,10 +435,12 @@ impl Continuous {
         &self,
         features: &[Option<f64>],
         group: &[usize],
-    ) -> Result<Option<(Frame<'_>, u32)>, EstimatorError> {
+    ) -> Result<Option<(Frame<'_>, crate::track::GroupMask)>, EstimatorError> {
         let (values, _) = frame_values(features, self.file.feature_names.len())?;
         let frame = Frame::new(self, self.usable(values));
-        let mask = group.iter().fold(0u32, |m, &i| m | 1 << i.min(31));
+        let mask = group
+            .iter()
+            .fold(0, |m: crate::track::GroupMask, &i| m | 1 << i.min(63));
         let known = group.iter().all(|&i| i < self.file.feature_names.len());
         Ok((known && !group.is_empty() && mask & !frame.usable_mask == 0).then_some((frame, mask)))
     }
@@ -455,9 +462,9 @@ impl Continuous {
         let dim = file.feature_names.len();
         check_features(&file.feature_names, file.feature_config.as_ref())
             .map_err(|e| corrupted(e.to_string()))?;
-        if dim > MAX_FEATURES {
+        if dim > MAX_CONTINUOUS_FEATURES {
             return Err(corrupted(format!(
-                "{dim} features: the continuous tracker takes at most {MAX_FEATURES}"
+                "{dim} features: the continuous tracker takes at most {MAX_CONTINUOUS_FEATURES}"
             )));
         }
         file.settings
