@@ -592,3 +592,34 @@ fn sweeps_over_seeds_give_intervals_and_paired_findings_whatever_the_job_count()
     let variant = &one["across_seeds"]["variants"][0];
     assert_eq!(variant["seeds"], serde_json::json!([1, 2, 3]));
 }
+
+#[test]
+fn the_scale_scenario_runs_end_to_end_within_its_expectations() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/scale.toml");
+    let out = evitrack(
+        &[
+            "sweep",
+            scenario,
+            "--out",
+            dir.path().to_str().unwrap(),
+            "--check",
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let results: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("scale").join("results.json")).unwrap(),
+    )
+    .unwrap();
+    // 10,000 sample poses, 32 features of 3 states, all combined on every frame.
+    assert_eq!(results["samples"], 10_000);
+    assert_eq!(results["features"].as_array().map(Vec::len), Some(32));
+    assert_eq!(results["evidential"]["states"], serde_json::json!(vec![3; 32]));
+    assert_eq!(results["methods"][0]["method"], "evidential");
+    assert_eq!(results["methods"][0]["mean_group_size"], 32.0);
+}
