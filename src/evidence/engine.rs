@@ -5,7 +5,7 @@
 
 use super::combine::{WorkLimit, WorkLimits};
 use super::mass::MassFunction;
-use super::subset::{word_count, Subset};
+use super::subset::word_count;
 use super::EvidenceError;
 
 const EMPTY_SLOT: u64 = u64::MAX;
@@ -55,11 +55,11 @@ impl Arena {
     fn load(&mut self, f: &MassFunction) -> f64 {
         self.clear();
         let mut empty = 0.0;
-        for (s, m) in f.focal() {
-            if s.is_empty() {
+        for (s, &m) in f.set_words().zip(f.masses()) {
+            if s.iter().all(|&x| x == 0) {
                 empty += m;
             } else {
-                self.words.extend_from_slice(s.words());
+                self.words.extend_from_slice(s);
                 self.mass.push(m);
             }
         }
@@ -411,7 +411,7 @@ fn run_in<R>(
         *scratch_table = engine.table;
         e
     };
-    if fs.iter().any(|f| f.focal().count() > engine.max_sets) {
+    if fs.iter().any(|f| f.len() > engine.max_sets) {
         return Err(over(engine, &mut scratch.table));
     }
     let Scratch {
@@ -504,20 +504,18 @@ fn run_in<R>(
     })))
 }
 
+/// The result as a function that keeps the arena's words; subsets are built only when asked for.
 pub(super) fn to_mass_function(out: Outcome<'_>, keep_empty: bool) -> MassFunction {
     let w = word_count(out.n).max(1);
-    let mut focal = Vec::with_capacity(out.arena.len() + 1);
-    focal.extend(
-        out.arena
-            .words
-            .chunks_exact(w)
-            .map(|words| Subset::from_words(out.n, words)),
-    );
-    let mut mass = Vec::with_capacity(out.arena.len() + 1);
+    let with_empty = keep_empty && out.empty > 0.0;
+    let sets = out.arena.len() + usize::from(with_empty);
+    let mut words = Vec::with_capacity(sets * w);
+    words.extend_from_slice(&out.arena.words);
+    let mut mass = Vec::with_capacity(sets);
     mass.extend_from_slice(&out.arena.mass);
-    if keep_empty && out.empty > 0.0 {
-        focal.push(Subset::empty(out.n));
+    if with_empty {
+        words.resize(sets * w, 0);
         mass.push(out.empty);
     }
-    MassFunction::from_parts(out.n, focal, mass)
+    MassFunction::from_words(out.n, words, mass)
 }

@@ -1,8 +1,9 @@
 //! Mass functions (basic probability assignments) with sparse focal sets.
 
 use std::collections::HashMap;
+use std::sync::OnceLock;
 
-use super::subset::{check_frame, Subset};
+use super::subset::{check_frame, word_count, Subset};
 use super::EvidenceError;
 
 /// Largest accepted absolute deviation of the sum of the masses from 1 at construction.
@@ -15,11 +16,38 @@ pub const MASS_TOLERANCE: f64 = 1e-9;
 /// Normalised functions (built with [`MassFunction::new`]) have no mass on ∅; the unconstrained
 /// [`MassFunction::unnormalised`] form may, and then [`MassFunction::empty_mass`] is the conflict
 /// it carries (Smets' open-world form, as produced by the conjunctive rule).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone)]
 pub struct MassFunction {
     n: usize,
-    focal: Vec<Subset>,
+    sets: Sets,
     mass: Vec<f64>,
+}
+
+/// The focal sets: as subsets, or as the flat words of a combination's arena, turned into subsets
+/// only when asked for (a combination of thousands of sets is often only read through its contour).
+#[derive(Clone)]
+enum Sets {
+    Subsets(Vec<Subset>),
+    Words {
+        words: Vec<u64>,
+        subsets: OnceLock<Vec<Subset>>,
+    },
+}
+
+impl PartialEq for MassFunction {
+    fn eq(&self, other: &Self) -> bool {
+        self.n == other.n && self.mass == other.mass && self.set_words().eq(other.set_words())
+    }
+}
+
+impl std::fmt::Debug for MassFunction {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MassFunction")
+            .field("n", &self.n)
+            .field("focal", &self.focal_sets())
+            .field("mass", &self.mass)
+            .finish()
+    }
 }
 
 impl MassFunction {
@@ -93,14 +121,49 @@ impl MassFunction {
         }
         Ok(MassFunction {
             n,
-            focal: sets,
+            sets: Sets::Subsets(sets),
             mass: masses,
         })
     }
 
     /// Trusted constructor for results of the algebra: distinct sets, positive masses.
     pub(crate) fn from_parts(n: usize, focal: Vec<Subset>, mass: Vec<f64>) -> Self {
-        MassFunction { n, focal, mass }
+        MassFunction {
+            n,
+            sets: Sets::Subsets(focal),
+            mass,
+        }
+    }
+
+    /// Trusted constructor from flat words, ⌈n / 64⌉ per set (bits beyond the frame zero): distinct
+    /// sets, positive masses.
+    pub(crate) fn from_words(n: usize, words: Vec<u64>, mass: Vec<f64>) -> Self {
+        debug_assert_eq!(words.len(), mass.len() * word_count(n));
+        MassFunction {
+            n,
+            sets: Sets::Words {
+                words,
+                subsets: OnceLock::new(),
+            },
+            mass,
+        }
+    }
+
+    /// The words of every focal set, in order, without building subsets.
+    pub(crate) fn set_words(&self) -> impl Iterator<Item = &[u64]> + '_ {
+        let (subsets, flat): (&[Subset], &[u64]) = match &self.sets {
+            Sets::Subsets(v) => (v, &[]),
+            Sets::Words { words, .. } => (&[], words),
+        };
+        subsets
+            .iter()
+            .map(Subset::words)
+            .chain(flat.chunks_exact(word_count(self.n).max(1)))
+    }
+
+    /// (words of a focal set, mass) pairs.
+    fn focal_words(&self) -> impl Iterator<Item = (&[u64], f64)> + '_ {
+        self.set_words().zip(self.mass.iter().copied())
     }
 
     /// The vacuous mass function m(Θ) = 1 (total ignorance).
@@ -115,7 +178,7 @@ impl MassFunction {
         check_frame(n)?;
         Ok(MassFunction {
             n,
-            focal: vec![Subset::full(n)],
+            sets: Sets::Subsets(vec![Subset::full(n)]),
             mass: vec![1.0],
         })
     }
@@ -142,22 +205,31 @@ impl MassFunction {
 
     /// Number of focal sets (including ∅ if it carries mass).
     pub fn len(&self) -> usize {
-        self.focal.len()
+        self.mass.len()
     }
 
     /// Whether there are no focal sets (never true for a constructed function).
     pub fn is_empty(&self) -> bool {
-        self.focal.is_empty()
+        self.mass.is_empty()
     }
 
     /// (focal set, mass) pairs.
     pub fn focal(&self) -> impl ExactSizeIterator<Item = (&Subset, f64)> + '_ {
-        self.focal.iter().zip(self.mass.iter().copied())
+        self.focal_sets().iter().zip(self.mass.iter().copied())
     }
 
     /// The focal sets.
     pub fn focal_sets(&self) -> &[Subset] {
-        &self.focal
+        match &self.sets {
+            Sets::Subsets(v) => v,
+            Sets::Words { words, subsets } => subsets.get_or_init(|| {
+                let w = word_count(self.n).max(1);
+                words
+                    .chunks_exact(w)
+                    .map(|c| Subset::from_words(self.n, c))
+                    .collect()
+            }),
+        }
     }
 
     /// The masses, in the order of [`MassFunction::focal_sets`].
@@ -167,39 +239,45 @@ impl MassFunction {
 
     /// Mass on the empty set (0 for normalised functions).
     pub fn empty_mass(&self) -> f64 {
-        self.focal()
-            .filter(|(s, _)| s.is_empty())
+        self.focal_words()
+            .filter(|(s, _)| s.iter().all(|&x| x == 0))
             .map(|(_, m)| m)
             .sum()
     }
 
     /// Whether the function is vacuous (all mass on the whole frame).
     pub fn is_vacuous(&self) -> bool {
-        self.focal.len() == 1 && self.focal[0].count() == self.n
+        self.len() == 1
+            && self
+                .set_words()
+                .all(|s| s.iter().map(|x| x.count_ones() as usize).sum::<usize>() == self.n)
     }
 
     /// Bel(A) = Σ m(B) over non-empty B ⊆ A (mass on ∅ is not belief).
     ///
     /// `a` is read as a set of indices; elements outside this frame are ignored.
     pub fn belief(&self, a: &Subset) -> f64 {
-        self.focal()
-            .filter(|(b, _)| !b.is_empty() && b.is_subset_of(a))
+        let a = a.words();
+        self.focal_words()
+            .filter(|(b, _)| b.iter().any(|&x| x != 0) && words_within(b, a))
             .map(|(_, m)| m)
             .sum()
     }
 
     /// Pl(A) = Σ m(B) over B with B ∩ A ≠ ∅.
     pub fn plausibility(&self, a: &Subset) -> f64 {
-        self.focal()
-            .filter(|(b, _)| b.intersects(a))
+        let a = a.words();
+        self.focal_words()
+            .filter(|(b, _)| b.iter().zip(a).any(|(x, y)| x & y != 0))
             .map(|(_, m)| m)
             .sum()
     }
 
     /// Q(A) = Σ m(B) over B ⊇ A.
     pub fn commonality(&self, a: &Subset) -> f64 {
-        self.focal()
-            .filter(|(b, _)| a.is_subset_of(b))
+        let a = a.words();
+        self.focal_words()
+            .filter(|(b, _)| words_within(a, b))
             .map(|(_, m)| m)
             .sum()
     }
@@ -208,8 +286,8 @@ impl MassFunction {
     pub fn contour(&self) -> Vec<f64> {
         let mut pl = vec![0.0; self.n];
         // Word by word: focal sets of long combinations are tiny, so most words are zero.
-        for (s, m) in self.focal() {
-            for (chunk, &word) in pl.chunks_mut(64).zip(s.words()) {
+        for (s, m) in self.focal_words() {
+            for (chunk, &word) in pl.chunks_mut(64).zip(s) {
                 let mut bits = word;
                 while bits != 0 {
                     if let Some(p) = chunk.get_mut(bits.trailing_zeros() as usize) {
@@ -247,12 +325,15 @@ impl MassFunction {
             focal.push(full);
             mass.push(on_full);
         }
-        Ok(MassFunction {
-            n: self.n,
-            focal,
-            mass,
-        })
+        Ok(MassFunction::from_parts(self.n, focal, mass))
     }
+}
+
+/// A ⊆ B on words, as [`Subset::is_subset_of`]: words of A beyond B's must be zero.
+fn words_within(a: &[u64], b: &[u64]) -> bool {
+    a.iter()
+        .enumerate()
+        .all(|(i, &x)| x & !b.get(i).copied().unwrap_or(0) == 0)
 }
 
 #[cfg(test)]
@@ -335,6 +416,35 @@ mod tests {
         assert_eq!(m.len(), 2);
         assert!((m.masses().iter().sum::<f64>() - 1.0).abs() < 1e-15);
         assert!((m.masses()[0] - 0.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn combination_results_read_like_built_ones() {
+        // Results keep the engine's words; every query must match the same function as subsets.
+        for seed in 0..20 {
+            let n = [3, 64, 70, 200, 600][seed % 5];
+            let fs: Vec<_> = (0..4)
+                .map(|k| crate::evidence::testutil::random_mass(n, 5, 40 * seed as u64 + k))
+                .collect();
+            for c in [
+                crate::evidence::conjunctive_all(&fs).unwrap(),
+                crate::evidence::dempster_all(&fs).unwrap().mass.unwrap(),
+            ] {
+                let built =
+                    MassFunction::from_parts(n, c.focal_sets().to_vec(), c.masses().to_vec());
+                assert_eq!(c, built);
+                assert_eq!(format!("{c:?}"), format!("{built:?}"));
+                assert_eq!(c.clone(), built);
+                assert_eq!(c.contour(), built.contour());
+                assert_eq!(c.empty_mass().to_bits(), built.empty_mass().to_bits());
+                assert_eq!(c.is_vacuous(), built.is_vacuous());
+                for a in fs.iter().flat_map(|f| f.focal_sets()).chain(c.focal_sets()) {
+                    assert_eq!(c.belief(a).to_bits(), built.belief(a).to_bits());
+                    assert_eq!(c.plausibility(a).to_bits(), built.plausibility(a).to_bits());
+                    assert_eq!(c.commonality(a).to_bits(), built.commonality(a).to_bits());
+                }
+            }
+        }
     }
 
     #[test]
