@@ -15,5 +15,6 @@ mod model;
 mod pipeline;
 mod reference;
 mod reliability;
+mod scheduler;
 mod sim;
 mod track;

@@ -165,13 +165,17 @@ fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenari
 fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
     let s = scenario.get();
     let bar = progress_bar("simulate");
-    let mut progress = |_: &str, done: usize, total: usize| {
+    // The sample trajectory's stages: its simulation, its features, adaptive rounds.
+    let mut progress = |stage: &str, done: usize, total: usize| {
+        if !stage.is_empty() && bar.message() != stage {
+            bar.set_message(stage.to_string());
+        }
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     };
     let (motion, part) = match part {
         "sample" => {
-            let bench = Workbench::new();
+            let bench = Workbench::with_threads(super::cores());
             let sample =
                 sample_trajectory(scenario, &bench, &mut progress, &mut Timings::default())?;
             bar.finish_and_clear();
@@ -210,7 +214,10 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
         other => bail!("--part `{other}` must be sample, validation or test[N]"),
     };
     let seed = seed::for_part(s.seed, part);
-    let dataset = sim::simulate(&s.sim, &motion, seed, &mut |d, t| progress("", d, t))?;
+    let threads = super::cores();
+    let dataset = sim::simulate_on(&s.sim, &motion, seed, threads, &mut |d, t| {
+        progress("", d, t)
+    })?;
     bar.finish_and_clear();
     Ok(dataset)
 }
@@ -231,10 +238,11 @@ pub fn simulate(args: &SimulateArgs) -> Result<ExitCode> {
             // A random path without its own seed takes --seed.
             let motion = motion.with_default_seed(args.sim.seed);
             let bar = progress_bar("simulate");
-            let dataset = sim::simulate(
+            let dataset = sim::simulate_on(
                 &args.sim.settings(),
                 &motion,
                 args.sim.seed,
+                super::cores(),
                 &mut |done, total| {
                     bar.set_length(total as u64);
                     bar.set_position(done as u64);

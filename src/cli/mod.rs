@@ -186,20 +186,36 @@ fn polarity_name(p: Polarity) -> &'static str {
     }
 }
 
-/// The features of every frame, with a progress bar.
+/// The features of every frame, on every core, with a progress bar.
 pub(crate) fn extract_with_progress(set: &FeatureSet, dataset: &Dataset) -> FeatureRows {
     let bar = progress_bar("features");
     bar.set_length(dataset.len() as u64);
-    let rows = dataset
-        .frames
-        .iter()
-        .map(|frame| {
-            bar.inc(1);
-            set.extract(&frame.image)
-        })
-        .collect();
+    let images: Vec<_> = dataset.images().collect();
+    let rows = set.extract_on(&images, cores(), &mut |done, _| {
+        bar.set_position(done as u64)
+    });
     bar.finish_and_clear();
     rows
+}
+
+/// A spinner with the elapsed time, for a stage that reports no progress of its own (a fit).
+pub(crate) fn spinner(label: &str) -> ProgressBar {
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>12} {spinner} {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    bar.set_message(label.to_string());
+    // The ticker is a thread: only for a bar that is drawn (stderr is a terminal).
+    if !bar.is_hidden() {
+        bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    }
+    bar
+}
+
+/// The cores this process may use, the default thread count of every command.
+pub(crate) fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 /// A buffered writer to the file, or to standard output when there is none.

@@ -8,7 +8,7 @@ use clap::Args;
 
 use super::{
     check_polarity, ensure_output_writable, extract_with_progress, feature_config_for,
-    progress_bar, read_dataset, write_output,
+    progress_bar, read_dataset, spinner, write_output,
 };
 use evitrack::estimator::{
     self, missing_penalty, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential,
@@ -325,7 +325,11 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
             },
             ..EstimatorSettings::default()
         };
-        let estimator = args.method.method().fit(&settings, &training)?;
+        let method = args.method.method();
+        let bar = spinner(&format!("fit {method}"));
+        let estimator = method.fit(&settings, &training);
+        bar.finish_and_clear();
+        let estimator = estimator?;
         evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
             .with_context(|| format!("writing {}", args.out.display()))?;
         eprintln!(
@@ -367,7 +371,10 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
             .threshold_quantile
             .map_or(ThresholdRule::ErrorWeighted, ThresholdRule::Quantile),
     };
-    let estimator = Evidential::fit(&settings, &training)?;
+    let bar = spinner("fit evidential");
+    let estimator = Evidential::fit(&settings, &training);
+    bar.finish_and_clear();
+    let estimator = estimator?;
     evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
         .with_context(|| format!("writing {}", args.out.display()))?;
     let mut table = Table::new([

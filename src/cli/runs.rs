@@ -29,16 +29,23 @@ pub struct RunArgs {
     timings: bool,
 }
 
-/// Progress bars for the stages of runs, one line per variant.
+/// Progress bars for the stages of runs, one line per variant: the stage (simulating a motion,
+/// extracting its features, fitting a method, tracking with it), its frames, and the variant's
+/// elapsed time. Hidden when stderr is not a terminal (indicatif's stderr target), so logs and
+/// tests see none.
 pub(super) struct StageBars {
     multi: MultiProgress,
     bars: Vec<ProgressBar>,
 }
 
+/// What a variant's bar says before its run starts.
+const WAITING: &str = "waiting";
+
 impl StageBars {
     pub(super) fn new(names: &[String]) -> Self {
         let multi = MultiProgress::new();
-        let style = ProgressStyle::with_template("{prefix:>24} {msg:>14} [{bar:30}] {pos}/{len}")
+        let template = "{prefix:>24} {spinner} {msg:>22} [{bar:30}] {pos}/{len} {elapsed}";
+        let style = ProgressStyle::with_template(template)
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> ");
         let bars = names
@@ -47,6 +54,7 @@ impl StageBars {
                 let bar = multi.add(ProgressBar::new(0));
                 bar.set_style(style.clone());
                 bar.set_prefix(name.clone());
+                bar.set_message(WAITING);
                 bar
             })
             .collect();
@@ -55,11 +63,25 @@ impl StageBars {
 
     pub(super) fn update(&self, variant: usize, stage: &str, done: usize, total: usize) {
         if let Some(bar) = self.bars.get(variant) {
-            if bar.message() != stage {
+            let message = bar.message();
+            if message != stage {
+                // A fit reports no frames: the spinner and the clock show it is working.
+                if message == WAITING && !bar.is_hidden() {
+                    bar.reset_elapsed();
+                    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+                }
                 bar.set_message(stage.to_string());
             }
             bar.set_length(total as u64);
             bar.set_position(done as u64);
+        }
+    }
+
+    /// Stops a variant's bar once its run is over (its line stays, saying so).
+    pub(super) fn done(&self, variant: usize, failed: bool) {
+        if let Some(bar) = self.bars.get(variant) {
+            bar.disable_steady_tick();
+            bar.finish_with_message(if failed { "failed" } else { "done" });
         }
     }
 
@@ -79,7 +101,9 @@ pub fn run(args: &RunArgs) -> Result<ExitCode> {
     };
     let dir = args.out.join(scenario.name());
     ensure_writable(&dir)?;
-    let bench = Workbench::new();
+    // Its motions simulated side by side, each frame rendered beside the physics: the same
+    // results as on one thread.
+    let bench = Workbench::with_threads(super::cores());
     let bars = StageBars::new(&[scenario.name().to_string()]);
     let output = experiment::run(&scenario, &bench, &mut |stage, done, total| {
         bars.update(0, stage, done, total)

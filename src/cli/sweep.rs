@@ -84,7 +84,9 @@ pub struct SweepArgs {
     /// Scenario files (TOML) whose [sweep] variants to run.
     #[arg(required = true)]
     scenarios: Vec<PathBuf>,
-    /// Variants run at once (default: the number of cores).
+    /// Threads: variants run at once (the longest first); with 2 or more, each run also
+    /// simulates its motions side by side, rendering beside the physics (default: the number of
+    /// cores). Results are the same whatever the count.
     #[arg(long)]
     jobs: Option<usize>,
     /// Compare against each variant's expectations (on its own seed); exit 1 with a list of what
@@ -169,11 +171,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
             .collect();
         eprintln!("shard {}/{n}: {} of {total} runs", i + 1, runs.len());
     }
-    let jobs = args.jobs.unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-    });
+    let jobs = args.jobs.unwrap_or_else(super::cores);
     ensure_writable(&args.out)?;
     let folder = |run: &CheckedScenario| {
         let dir = args.out.join(run.name());
@@ -230,7 +228,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
     let state = std::sync::Mutex::new(state);
     let todo_runs: Vec<CheckedScenario> = todo.iter().map(|&k| runs[k].clone()).collect();
     let todo_labels: Vec<String> = todo.iter().map(|&k| labels[k].clone()).collect();
-    let bench = Workbench::new();
+    let bench = Workbench::with_threads(jobs);
     let bars = StageBars::new(&todo_labels);
     let clock = std::time::Instant::now();
     experiment::run_each(
@@ -239,6 +237,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
         &bench,
         &|i, stage, done, total| bars.update(i, stage, done, total),
         &|i, result| {
+            bars.done(i, result.is_err());
             let k = todo[i];
             // A run whose files cannot be written keeps its numbers but stays pending.
             let (summary, failure) = match result {

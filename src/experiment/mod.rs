@@ -12,7 +12,7 @@ mod sample;
 mod workbench;
 
 pub use sample::{sample_trajectory, SampleTrajectory};
-pub use workbench::Workbench;
+pub use workbench::{Step, Workbench};
 
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -106,13 +106,16 @@ pub fn run(
     let master = s.seed;
     let sim = &s.sim;
 
+    if bench.threads() > 1 {
+        simulate_ahead(scenario, bench, progress, &mut timings);
+    }
     let sample = sample_trajectory(scenario, bench, progress, &mut timings)?;
 
     // Validation data, for tuning by validation error, the fallback ranking and the threshold.
     let validation = match &s.validation {
         Some(motion) => {
             let seed = seed::for_part(master, ScenarioPart::Validation);
-            let what = "the validation motion";
+            let what = VALIDATION_STAGE;
             let (truth, _, rows) =
                 labelled_motion(scenario, bench, motion, seed, what, progress, &mut timings)?;
             Some((truth, rows))
@@ -126,7 +129,7 @@ pub fn run(
     let scales = FeatureScale::of_rows(&sample.rows, names.len());
     let mut tests = Vec::with_capacity(s.tests.len());
     for (k, motion) in s.tests.iter().enumerate() {
-        let label = format!("test{k}:{}", motion.name());
+        let label = test_label(k, motion);
         let seed = seed::for_part(master, ScenarioPart::Test(k));
         let (truth, times, rows) = labelled_motion(
             scenario,
@@ -199,9 +202,12 @@ pub fn run(
         let clock = Instant::now();
         let mut method_records = Vec::new();
         let mut per_motion = Vec::with_capacity(tests.len());
+        let track_stage = format!("track {method}");
+        let frames: usize = tests.iter().map(|t| t.3.len()).sum();
         for (label, truth, times, rows, faults) in &tests {
             let mut errors = Vec::new();
             for (i, row) in rows.iter().enumerate() {
+                progress(&track_stage, method_records.len(), frames);
                 let estimate =
                     estimator
                         .estimate(row)
@@ -227,6 +233,7 @@ pub fn run(
             }
             per_motion.push((label.clone(), ErrorStats::from_errors(&errors)));
         }
+        progress(&track_stage, frames, frames);
         let track_seconds = clock.elapsed().as_secs_f64();
         methods.push(MethodSummary::new(
             method.name(),
@@ -288,13 +295,14 @@ fn labelled_motion(
     let data = bench.dataset(&s.sim, motion, seed, &mut |d, t| progress(label, d, t))?;
     timings.simulate += clock.elapsed().as_secs_f64();
     let clock = Instant::now();
+    let mut step = stage_progress(label, progress);
     let rows = bench.features(
         &s.sim,
         motion,
         seed,
         &s.features,
         scenario.feature_set(),
-        &mut |_, _| {},
+        &mut step,
     )?;
     timings.features += clock.elapsed().as_secs_f64();
     let truth = data
@@ -302,6 +310,19 @@ fn labelled_motion(
         .ok_or_else(|| ExperimentError::NoTruth(label.to_string()))?;
     let times = data.frames.iter().map(|f| f.t).collect();
     Ok((truth, times, rows))
+}
+
+/// Progress of [`Workbench::features`] under `label`: its simulation as `label`, its
+/// extraction as `label features`.
+fn stage_progress<'a>(
+    label: &'a str,
+    progress: Progress<'a>,
+) -> impl FnMut(Step, usize, usize) + 'a {
+    let extracting = format!("{label} features");
+    move |step, done, total| match step {
+        Step::Simulate => progress(label, done, total),
+        Step::Extract => progress(&extracting, done, total),
+    }
 }
 
 /// Runs several scenarios on `jobs` threads sharing one workbench; results come back in input
@@ -327,6 +348,8 @@ pub fn run_all(
 
 /// [`run_all`] handing each result to `finished(variant, result)` as soon as it is ready (on the
 /// thread that ran it), so that a sweep can write each run's files before the others finish.
+///
+/// With `jobs` ≥ 2 the longest runs start first; results do not depend on the order.
 pub fn run_each(
     scenarios: &[CheckedScenario],
     jobs: usize,
@@ -334,21 +357,116 @@ pub fn run_each(
     progress: &(dyn Fn(usize, &str, usize, usize) + Sync),
     finished: &(dyn Fn(usize, Result<RunOutput, ExperimentError>) + Sync),
 ) {
+    // Longest first, so that no long run is left alone on the machine at the end.
+    let mut order: Vec<usize> = (0..scenarios.len()).collect();
+    if jobs > 1 {
+        order.sort_by(|&a, &b| {
+            expected_cost(&scenarios[b]).total_cmp(&expected_cost(&scenarios[a]))
+        });
+    }
     let next = std::sync::atomic::AtomicUsize::new(0);
     std::thread::scope(|scope| {
         for _ in 0..jobs.clamp(1, scenarios.len().max(1)) {
             scope.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(scenario) = scenarios.get(i) else {
+                let t = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(&i) = order.get(t) else {
                     break;
                 };
-                let result = run(scenario, bench, &mut |stage, done, total| {
+                let result = run(&scenarios[i], bench, &mut |stage, done, total| {
                     progress(i, stage, done, total)
                 });
                 finished(i, result);
             });
         }
     });
+}
+
+/// A rough, relative cost of running `scenario`, to start the longest runs first: the Gaussian
+/// process and continuous fits dominate, growing with the feature count and, cubically, with
+/// the samples kept. It only orders the runs; the results do not depend on it.
+fn expected_cost(scenario: &CheckedScenario) -> f64 {
+    let s = scenario.get();
+    let heavy = s
+        .estimators
+        .iter()
+        .filter(|m| {
+            matches!(
+                m,
+                crate::estimator::Method::Gp | crate::estimator::Method::Continuous
+            )
+        })
+        .count();
+    let kept = 1.0 / s.sample.keep_every.max(1) as f64;
+    let features = scenario.feature_set().len() as f64;
+    (heavy as f64 + 0.01 * s.estimators.len() as f64) * features * kept.powi(3)
+}
+
+/// A motion whose dataset a run asks the workbench for.
+struct Need<'a> {
+    motion: &'a Motion,
+    seed: u64,
+    /// The stage name the run shows while it is simulated.
+    label: String,
+}
+
+/// Simulates the run's motions side by side into `bench` (the sample trajectory on this thread,
+/// showing its progress); the run then takes them from the workbench, failures included.
+fn simulate_ahead(
+    scenario: &CheckedScenario,
+    bench: &Workbench,
+    progress: Progress<'_>,
+    timings: &mut Timings,
+) {
+    let s = scenario.get();
+    let clock = Instant::now();
+    let needs = needs(scenario);
+    std::thread::scope(|scope| {
+        for need in &needs[1..] {
+            scope.spawn(move || bench.dataset(&s.sim, need.motion, need.seed, &mut |_, _| {}));
+        }
+        let sample = &needs[0];
+        let _ = bench.dataset(&s.sim, sample.motion, sample.seed, &mut |d, t| {
+            progress(&sample.label, d, t)
+        });
+    });
+    timings.simulate += clock.elapsed().as_secs_f64();
+}
+
+/// The sample, validation and test motions of a run, with the seeds and stage names `run` uses
+/// (the adaptive rounds depend on the fit, so they are not here).
+fn needs(scenario: &CheckedScenario) -> Vec<Need<'_>> {
+    let s = scenario.get();
+    let master = s.seed;
+    let mut needs = vec![Need {
+        motion: &s.sample.motion,
+        seed: seed::for_part(master, ScenarioPart::Sample),
+        label: SAMPLE_STAGE.to_string(),
+    }];
+    if let Some(motion) = &s.validation {
+        needs.push(Need {
+            motion,
+            seed: seed::for_part(master, ScenarioPart::Validation),
+            label: VALIDATION_STAGE.to_string(),
+        });
+    }
+    for (k, motion) in s.tests.iter().enumerate() {
+        needs.push(Need {
+            motion,
+            seed: seed::for_part(master, ScenarioPart::Test(k)),
+            label: test_label(k, motion),
+        });
+    }
+    needs
+}
+
+/// The stage name of the sample trajectory's simulation.
+const SAMPLE_STAGE: &str = "sample";
+/// The stage name of the validation motion's simulation.
+const VALIDATION_STAGE: &str = "the validation motion";
+
+/// The name of test motion `k` in records, progress and errors (`test0:lissajous`).
+fn test_label(k: usize, motion: &Motion) -> String {
+    format!("test{k}:{}", motion.name())
 }
 
 #[cfg(test)]

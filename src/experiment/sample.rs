@@ -45,11 +45,14 @@ pub fn sample_trajectory(
     let sample_seed = seed::for_part(s.seed, ScenarioPart::Sample);
     let motion = &s.sample.motion;
     let full = bench.dataset(sim, motion, sample_seed, &mut |d, t| {
-        progress("sample", d, t)
+        progress(super::SAMPLE_STAGE, d, t)
     })?;
     timings.simulate += clock.elapsed().as_secs_f64();
     let clock = Instant::now();
-    let all_rows = bench.features(sim, motion, sample_seed, &s.features, set, &mut |_, _| {})?;
+    let all_rows = {
+        let mut step = super::stage_progress(super::SAMPLE_STAGE, progress);
+        bench.features(sim, motion, sample_seed, &s.features, set, &mut step)?
+    };
     timings.features += clock.elapsed().as_secs_f64();
     let what = "the sample trajectory";
     let all_poses = full
@@ -81,13 +84,18 @@ pub fn sample_trajectory(
                 .collect();
             let motion = Motion::Points { points };
             let seed = seed::for_adaptive_round(s.seed, round);
-            let data =
-                crate::sim::simulate(sim, &motion, seed, &mut |d, t| progress("adaptive", d, t))
-                    .map_err(|e| e.to_string())?;
+            let threads = bench.threads();
+            let data = crate::sim::simulate_on(sim, &motion, seed, threads, &mut |d, t| {
+                progress("adaptive", d, t)
+            })
+            .map_err(|e| e.to_string())?;
             if data.truth_positions().is_none() {
                 return Err("the simulator gave no ground truth".to_string());
             }
-            let features = set.extract_batch(data.images());
+            let images: Vec<_> = data.images().collect();
+            let features = set.extract_on(&images, threads, &mut |d, t| {
+                progress("adaptive features", d, t)
+            });
             added_frames.extend(data.frames);
             Ok(features)
         })?;

@@ -21,6 +21,7 @@ pub mod size;
 pub mod synthetic;
 
 use std::fmt;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
 use image::GrayImage;
@@ -431,6 +432,54 @@ impl FeatureSet {
     {
         images.into_iter().map(|im| self.extract(im)).collect()
     }
+
+    /// [`FeatureSet::extract_batch`] on up to `threads` threads, each taking a contiguous run of
+    /// images. `progress(done, total)` is called on the calling thread, which extracts the first
+    /// run, and once more at the end. Each image's values depend on that image only, so the rows
+    /// are the same whatever `threads`.
+    pub fn extract_on(
+        &self,
+        images: &[&GrayImage],
+        threads: usize,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Vec<Vec<Option<f64>>> {
+        let total = images.len();
+        let size = total.div_ceil(threads.clamp(1, total.max(1))).max(1);
+        let done = AtomicUsize::new(0);
+        let extract = |image: &&GrayImage| {
+            let row = self.extract(image);
+            done.fetch_add(1, Ordering::Relaxed);
+            row
+        };
+        let mut chunks = images.chunks(size);
+        let first = chunks.next().unwrap_or_default();
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = chunks
+                .map(|chunk| {
+                    let extract = &extract;
+                    scope.spawn(move || chunk.iter().map(extract).collect::<Vec<_>>())
+                })
+                .collect();
+            let mut rows = Vec::with_capacity(total);
+            let mut reported = 0;
+            for image in first {
+                rows.push(extract(image));
+                reported = done.load(Ordering::Relaxed);
+                progress(reported, total);
+            }
+            for handle in handles {
+                // An extractor's panic goes on in the caller, as without threads.
+                let chunk = handle
+                    .join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+                rows.extend(chunk);
+            }
+            if reported < total {
+                progress(total, total);
+            }
+            rows
+        })
+    }
 }
 
 #[cfg(test)]
@@ -491,6 +540,30 @@ mod tests {
         assert_eq!(partial.silhouette.threshold, Threshold::Fixed(90));
         assert!(toml::from_str::<FeatureConfig>("[size_functions]\nline = 4\n").is_err());
         assert!(toml::from_str::<FeatureConfig>("colour = 1\n").is_err());
+    }
+
+    #[test]
+    fn extraction_on_threads_gives_the_same_rows_in_order() {
+        let set = FeatureConfig::with_barycentre().check().unwrap();
+        let images: Vec<GrayImage> = (0..7)
+            .map(|k| {
+                let pose = [-6.0 + 2.0 * k as f64, 40.0 + 2.5 * k as f64];
+                synthetic::rig_like_frame(pose, 2.0, k).unwrap()
+            })
+            .collect();
+        let refs: Vec<&GrayImage> = images.iter().collect();
+        let one = set.extract_batch(refs.iter().copied());
+        assert!(one.iter().flatten().any(Option::is_some));
+        for threads in [1, 2, 3, 16] {
+            let mut calls = Vec::new();
+            let rows = set.extract_on(&refs, threads, &mut |done, total| calls.push((done, total)));
+            assert_eq!(rows, one, "{threads} threads");
+            assert!(calls.windows(2).all(|w| w[0].0 < w[1].0), "{calls:?}");
+            assert_eq!(calls.last(), Some(&(7, 7)), "{threads} threads");
+        }
+        assert!(set
+            .extract_on(&[], 2, &mut |_, _| panic!("no frames"))
+            .is_empty());
     }
 
     #[derive(Debug)]

@@ -109,44 +109,46 @@ pub fn simulate(
     seed: u64,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<Dataset, SimError> {
+    simulate_on(settings, motion, seed, 1, progress)
+}
+
+/// [`simulate`] on up to `threads` threads: with two or more, the frames are rendered on a
+/// second thread while the physics steps on to the next pose. The renderer takes the frames in
+/// order from the one noise stream, so the dataset is byte-identical whatever `threads`.
+pub fn simulate_on(
+    settings: &SimSettings,
+    motion: &Motion,
+    seed: u64,
+    threads: usize,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Dataset, SimError> {
     let rig = settings.check()?;
     let plan = motion.plan(&rig.five_bar)?;
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut frames = Vec::new();
-    let mut capture = |robot: &Robot, t: f64, frames: &mut Vec<Frame>| -> Result<(), SimError> {
-        let image = rig.camera.render(&robot.scene(), &rig.noise, &mut rng)?;
-        frames.push(Frame {
-            file: frame_file_name(frames.len()),
-            t,
-            image,
-            truth: Some(robot.truth()),
-        });
-        Ok(())
+    let total = match &plan {
+        Plan::Nodes(nodes) => nodes.len(),
+        Plan::Timed(path) => path.frame_times().len(),
     };
-    match plan {
-        Plan::Nodes(nodes) => {
-            let total = nodes.len();
-            frames.reserve(total);
-            let mut robot = Robot::new_at(&rig.five_bar, &rig.robot, nodes[0][0], nodes[0][1])?;
-            for (k, p) in nodes.iter().enumerate() {
-                robot.drive_to(p[0], p[1])?;
-                capture(&robot, robot.time(), &mut frames)?;
-                progress(k + 1, total);
-            }
-        }
-        Plan::Timed(path) => {
-            let times = path.frame_times();
-            let total = times.len();
-            frames.reserve(total);
-            let p0 = path.at(0.0);
-            let mut robot = Robot::new_at(&rig.five_bar, &rig.robot, p0[0], p0[1])?;
-            let at = |t: f64| path.at(t);
-            for (k, &t) in times.iter().enumerate() {
-                robot.follow(&at, t)?;
-                capture(&robot, t, &mut frames)?;
-                progress(k + 1, total);
-            }
-        }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut render = |shot: Shot| -> Result<Frame, SimError> {
+        Ok(Frame {
+            file: String::new(),
+            t: shot.t,
+            image: rig.camera.render(&shot.scene, &rig.noise, &mut rng)?,
+            truth: Some(shot.truth),
+        })
+    };
+    let mut frames = Vec::with_capacity(total);
+    if threads <= 1 {
+        drive(&rig, &plan, &mut |shot| {
+            frames.push(render(shot)?);
+            progress(frames.len(), total);
+            Ok(())
+        })?;
+    } else {
+        frames = pipelined(&rig, &plan, &mut render, &mut |done| progress(done, total))?;
+    }
+    for (k, frame) in frames.iter_mut().enumerate() {
+        frame.file = frame_file_name(k);
     }
     let source =
         serde_json::json!({ "generator": "evitrack sim", "motion": motion, "settings": settings });
@@ -165,6 +167,92 @@ pub fn simulate(
     })
 }
 
+/// What the physics hands the camera: one frame's scene, time and ground truth.
+struct Shot {
+    scene: Scene,
+    t: f64,
+    truth: crate::dataset::Truth,
+}
+
+/// Steps the robot through `plan`, handing each frame's [`Shot`] to `shot` in order.
+fn drive(
+    rig: &Rig,
+    plan: &Plan,
+    shot: &mut dyn FnMut(Shot) -> Result<(), SimError>,
+) -> Result<(), SimError> {
+    let take = |robot: &Robot, t: f64| Shot {
+        scene: robot.scene(),
+        t,
+        truth: robot.truth(),
+    };
+    match plan {
+        Plan::Nodes(nodes) => {
+            let mut robot = Robot::new_at(&rig.five_bar, &rig.robot, nodes[0][0], nodes[0][1])?;
+            for p in nodes {
+                robot.drive_to(p[0], p[1])?;
+                shot(take(&robot, robot.time()))?;
+            }
+        }
+        Plan::Timed(path) => {
+            let p0 = path.at(0.0);
+            let mut robot = Robot::new_at(&rig.five_bar, &rig.robot, p0[0], p0[1])?;
+            let at = |t: f64| path.at(t);
+            for t in path.frame_times() {
+                robot.follow(&at, t)?;
+                shot(take(&robot, t))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The physics on this thread, the camera on another; `done(n)` after the n-th frame is
+/// rendered. Fails as the sequential loop would: with the error of the earlier frame (the
+/// physics of frame k comes after the rendering of frame k − 1).
+fn pipelined(
+    rig: &Rig,
+    plan: &Plan,
+    render: &mut (dyn FnMut(Shot) -> Result<Frame, SimError> + Send),
+    done: &mut dyn FnMut(usize),
+) -> Result<Vec<Frame>, SimError> {
+    let (shots, shot_rx) = std::sync::mpsc::channel::<Shot>();
+    let (rendered, rendered_rx) = std::sync::mpsc::channel::<usize>();
+    std::thread::scope(|scope| {
+        let camera = scope.spawn(move || {
+            let mut frames = Vec::new();
+            for shot in shot_rx {
+                match render(shot) {
+                    Ok(frame) => frames.push(frame),
+                    // Frame `frames.len()` failed: dropping the receiver stops the physics.
+                    Err(e) => return (frames, Some(e)),
+                }
+                let _ = rendered.send(frames.len());
+            }
+            (frames, None)
+        });
+        let physics = drive(rig, plan, &mut |shot| {
+            for n in rendered_rx.try_iter() {
+                done(n);
+            }
+            shots
+                .send(shot)
+                .map_err(|_| SimError::Physics("the renderer stopped (its error follows)".into()))
+        });
+        drop(shots);
+        for n in rendered_rx.iter() {
+            done(n);
+        }
+        let (frames, render_error) = camera
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+        // The renderer fails only on a frame the physics made, so its error comes first.
+        match render_error {
+            Some(e) => Err(e),
+            None => physics.map(|()| frames),
+        }
+    })
+}
+
 /// Drives the robot from the workspace centre to `(x, y)` (mm, robot frame), lets it settle and
 /// renders one frame with noise drawn from `seed`.
 pub fn render_pose(
@@ -178,4 +266,59 @@ pub fn render_pose(
     robot.drive_to(x, y)?;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rig.camera.render(&robot.scene(), &rig.noise, &mut rng)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Frames, times and truths, byte for byte, and progress counting 1, 2, …, total.
+    fn check_threads_agree(motion: &Motion, seed: u64) {
+        let settings = SimSettings::default();
+        let one = simulate(&settings, motion, seed, &mut |_, _| {}).unwrap();
+        for threads in [2, 3] {
+            let mut calls = Vec::new();
+            let many = simulate_on(&settings, motion, seed, threads, &mut |done, total| {
+                calls.push((done, total))
+            })
+            .unwrap();
+            assert_eq!(many, one, "{threads} threads");
+            let total = one.len();
+            let expected: Vec<_> = (1..=total).map(|n| (n, total)).collect();
+            assert_eq!(calls, expected, "{threads} threads");
+        }
+    }
+
+    #[test]
+    fn rendering_beside_the_physics_gives_the_same_dataset() {
+        let nodes = Motion::SubsampledMesh {
+            spacing: 1.0,
+            every: 25,
+        };
+        check_threads_agree(&nodes, 4);
+        let timed = Motion::Circle {
+            centre: None,
+            radius: 4.0,
+            speed: 20.0,
+            duration: 0.5,
+            fps: 20.0,
+        };
+        check_threads_agree(&timed, 5);
+    }
+
+    #[test]
+    fn a_physics_error_stops_the_pipeline_with_that_error() {
+        // Three settled steps needed within one: the robot never settles.
+        let mut settings = SimSettings::default();
+        settings.robot.settle_steps = 3;
+        settings.robot.max_settle_steps = 1;
+        let motion = Motion::SubsampledMesh {
+            spacing: 1.0,
+            every: 100,
+        };
+        let one = simulate(&settings, &motion, 1, &mut |_, _| {}).map(|d| d.len());
+        let two = simulate_on(&settings, &motion, 1, 2, &mut |_, _| {}).map(|d| d.len());
+        assert_eq!(format!("{one:?}"), format!("{two:?}"));
+        assert!(one.is_err());
+    }
 }
