@@ -619,7 +619,10 @@ fn the_scale_scenario_runs_end_to_end_within_its_expectations() {
     // 10,000 sample poses, 32 features of 3 states, all combined on every frame.
     assert_eq!(results["samples"], 10_000);
     assert_eq!(results["features"].as_array().map(Vec::len), Some(32));
-    assert_eq!(results["evidential"]["states"], serde_json::json!(vec![3; 32]));
+    assert_eq!(
+        results["evidential"]["states"],
+        serde_json::json!(vec![3; 32])
+    );
     assert_eq!(results["methods"][0]["method"], "evidential");
     assert_eq!(results["methods"][0]["mean_group_size"], 32.0);
 }
