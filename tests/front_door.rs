@@ -317,46 +317,36 @@ fn train_with_a_validation_dataset_learns_threshold_and_feature_errors() {
 fn too_many_features_are_refused_before_anything_runs() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = dir.path().join("wide.toml");
-    std::fs::write(
-        &scenario,
+    // Exit status 2 and the message; refused by the check: nothing simulated or written.
+    let refused = |toml: &str| -> String {
+        std::fs::write(&scenario, toml).unwrap();
+        let out = evitrack(&[
+            "run",
+            scenario.to_str().unwrap(),
+            "--out",
+            dir.path().to_str().unwrap(),
+        ]);
+        assert_eq!(out.status.code(), Some(2));
+        assert!(!dir.path().join("wide").exists());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let stderr = refused(
         "name = \"wide\"\nestimators = [\"evidential\", \"knn\"]\n[features]\n\
          size_functions = { lines = 65 }\n[model]\nstates = 3\n",
-    )
-    .unwrap();
-    let out = evitrack(&[
-        "run",
-        scenario.to_str().unwrap(),
-        "--out",
-        dir.path().to_str().unwrap(),
-    ]);
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    );
     assert!(
         stderr.contains("65 features") && stderr.contains("at most 64"),
         "{stderr}"
     );
-    // Refused by the check: nothing was simulated or written.
-    assert!(!dir.path().join("wide").exists());
     // Every method by default: the continuous tracker's own cap, and how to get past it.
-    std::fs::write(
-        &scenario,
+    let stderr = refused(
         "name = \"wide\"\n[features]\nsize_functions = { lines = 20 }\n[model]\nstates = 3\n",
-    )
-    .unwrap();
-    let out = evitrack(&[
-        "run",
-        scenario.to_str().unwrap(),
-        "--out",
-        dir.path().to_str().unwrap(),
-    ]);
-    assert_eq!(out.status.code(), Some(2));
-    let stderr = String::from_utf8_lossy(&out.stderr);
+    );
     assert!(
         stderr.contains("20 features, but the continuous tracker takes at most 16")
             && stderr.contains("without \"continuous\" in `estimators`"),
         "{stderr}"
     );
-    assert!(!dir.path().join("wide").exists());
 }
 
 #[test]

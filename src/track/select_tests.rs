@@ -128,39 +128,22 @@ fn a_complete_graph_of_64_features_costs_one_group_level_under_largest_subset() 
         calls: 0,
     };
     let all = GroupMask::MAX;
-    let s = select_group(
-        &mut levels,
-        64,
-        all,
-        SelectionPolicy::LargestSubset,
-        ConflictLevel::Infinite,
-    );
-    assert_eq!(s.chosen.map(|c| c.1), Some(all));
-    assert_eq!(levels.calls, 1);
+    // The selection of every feature under `policy`, threshold ∞, and the group levels it cost.
+    let select = |levels: &mut RandomLevels, policy| {
+        levels.calls = 0;
+        let s = select_group(levels, 64, all, policy, ConflictLevel::Infinite);
+        (s, levels.calls)
+    };
+    let (s, calls) = select(&mut levels, SelectionPolicy::LargestSubset);
+    assert_eq!((s.chosen.map(|c| c.1), calls), (Some(all), 1));
     // The splitting policy too: the one maximal clique is eligible, nothing below is searched.
-    levels.calls = 0;
-    let s = select_group(
-        &mut levels,
-        64,
-        all,
-        SelectionPolicy::Splitting { min_size: 2 },
-        ConflictLevel::Infinite,
-    );
-    assert_eq!(s.alternatives.len(), 1);
-    assert_eq!(levels.calls, 1);
+    let (s, calls) = select(&mut levels, SelectionPolicy::Splitting { min_size: 2 });
+    assert_eq!((s.alternatives.len(), calls), (1, 1));
     // Lowest conflict with min size 2, every level 0: the 2,016 pairs give the lowest level,
     // then one chain of ties grows it to every feature (62 more groups); nothing else is tried.
     levels.single = vec![0.0; 64];
-    levels.calls = 0;
-    let s = select_group(
-        &mut levels,
-        64,
-        all,
-        SelectionPolicy::LowestConflict { min_size: 2 },
-        ConflictLevel::Infinite,
-    );
-    assert_eq!(s.chosen.map(|c| c.1), Some(all));
-    assert_eq!(levels.calls, 2016 + 62);
+    let (s, calls) = select(&mut levels, SelectionPolicy::LowestConflict { min_size: 2 });
+    assert_eq!((s.chosen.map(|c| c.1), calls), (Some(all), 2016 + 62));
 }
 
 #[test]
