@@ -13,6 +13,7 @@ mod select;
 mod settings;
 mod threshold;
 mod tracker;
+mod tuples;
 
 pub use model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
 pub use select::{members, select_group, GroupLevels, GroupMask, Selection};

@@ -16,7 +16,8 @@ use std::collections::HashMap;
 use super::conflict::TIE;
 use super::settings::SelectionPolicy;
 use super::tracker::{Tracker, Usable};
-use crate::evidence::ConflictLevel;
+use super::tuples::TupleStack;
+use crate::evidence::{ConflictLevel, Constructor};
 
 /// A group of features as a bit mask: bit `i` is feature `i`.
 pub type GroupMask = u64;
@@ -520,6 +521,8 @@ fn every_clique(
 struct CellLevels<'a> {
     tracker: &'a Tracker,
     usable: &'a [Option<Usable>],
+    /// Bayesian levels grown along the search's walk.
+    tuples: TupleStack,
 }
 
 impl GroupLevels for CellLevels<'_> {
@@ -531,7 +534,13 @@ impl GroupLevels for CellLevels<'_> {
     }
 
     fn group_level(&mut self, group: GroupMask) -> f64 {
-        self.tracker.raw_level(group, self.usable)
+        match self.tracker.settings.constructor {
+            Constructor::Bayesian => self
+                .tuples
+                .level(self.tracker, self.usable, group)
+                .unwrap_or_else(|| self.tracker.general_level(group, self.usable)),
+            Constructor::Consonant => self.tracker.raw_level(group, self.usable),
+        }
     }
 
     fn fallback_feature(&self) -> Option<usize> {
@@ -545,6 +554,7 @@ impl Tracker {
         let mut levels = CellLevels {
             tracker: self,
             usable,
+            tuples: TupleStack::default(),
         };
         select_group(
             &mut levels,
