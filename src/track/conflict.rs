@@ -98,17 +98,12 @@ impl Tracker {
         group: GroupMask,
         usable: &[Option<Usable>],
     ) -> Option<f64> {
-        let ms: Vec<(usize, &Usable)> = members(group)
-            .filter_map(|i| usable[i].as_ref().map(|u| (i, u)))
-            .collect();
-        self.bayesian_level(&ms)
+        self.bayesian_level(&usable_members(group, usable))
     }
 
     /// Fast exact level of conflict of a group; `None` when the general path must be used.
     fn fast_level(&self, group: GroupMask, usable: &[Option<Usable>]) -> Option<f64> {
-        let ms: Vec<(usize, &Usable)> = members(group)
-            .filter_map(|i| usable[i].as_ref().map(|u| (i, u)))
-            .collect();
+        let ms = usable_members(group, usable);
         match self.settings.constructor {
             Constructor::Bayesian => self.bayesian_level(&ms),
             Constructor::Consonant => self.consonant_level(&ms),
@@ -227,6 +222,13 @@ impl Tracker {
         }
         conflict_level_all(&fs).ok()
     }
+}
+
+/// The usable members of a group with their measurement functions, ascending.
+fn usable_members(group: GroupMask, usable: &[Option<Usable>]) -> Vec<(usize, &Usable)> {
+    members(group)
+        .filter_map(|i| usable[i].as_ref().map(|u| (i, u)))
+        .collect()
 }
 
 #[cfg(test)]

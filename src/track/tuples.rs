@@ -52,12 +52,9 @@ impl TupleStack {
         }
         let mut built = self.chain.last().map_or(0, |t| t.group);
         for i in members(group & !built) {
-            let next = self.extend(tracker, i, usable[i].as_ref()?);
             built |= 1 << i;
-            self.chain.push(Tuples {
-                group: built,
-                ..next
-            });
+            let next = self.extend(tracker, built, i, usable[i].as_ref()?);
+            self.chain.push(next);
         }
         let tuples = self.chain.last()?;
         if !tuples.positive.iter().any(|&p| p) {
@@ -77,8 +74,8 @@ impl TupleStack {
         Some((-(s.ln() + log_scale)).max(0.0))
     }
 
-    /// The tuples of the last group of the chain (or of none) with feature `i` added.
-    fn extend(&self, tracker: &Tracker, i: usize, feature: &Usable) -> Tuples {
+    /// The tuples of `group`: the last group of the chain (or none) with feature `i` added.
+    fn extend(&self, tracker: &Tracker, group: GroupMask, i: usize, feature: &Usable) -> Tuples {
         let states = tracker.to_cells[i].assignment();
         let n = tracker.to_cells[i].coarse_size();
         let cells = states.len();
@@ -106,7 +103,7 @@ impl TupleStack {
             id.push(remap[key]);
         }
         Tuples {
-            group: 0,
+            group,
             id,
             product,
             positive,
