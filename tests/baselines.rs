@@ -3,10 +3,11 @@
 //! bit and corrupted ones that are named, settings checks.
 
 use evitrack::estimator::{
-    load, Centre, CentreSettings, EstimatorError, Gp, GpSettings, Knn, KnnSettings, KnnWeights,
-    Labelled, PoseEstimate, PoseEstimator, TrainingSet,
+    load, Centre, CentreSettings, EstimatorError, EstimatorSettings, Gp, GpSettings, Knn,
+    KnnSettings, KnnWeights, Labelled, Method, PoseEstimate, PoseEstimator, TrainingSet,
 };
-use evitrack::model::ModelError;
+use evitrack::experiment::Workbench;
+use evitrack::model::{ModelError, Provenance};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -743,4 +744,54 @@ fn the_feature_configuration_travels_with_the_model() {
         ),
         "{error}"
     );
+}
+
+/// A sweep's variants that train on the same data share the Gaussian-process fits: the shared
+/// fit, handed out under each run's provenance, writes the same model file as fitting afresh,
+/// and any change to the training data makes a new fit.
+#[test]
+fn a_workbench_shares_fits_between_identical_training_sets_only() {
+    let data = Data::new(8, smooth);
+    let mut nudged = Data::new(8, smooth);
+    nudged.rows[5][2] = nudged.rows[5][2].map(|v| v + 1e-3);
+    fn with<'a>(data: &'a Data, name: &str) -> TrainingSet<'a> {
+        TrainingSet {
+            provenance: Provenance::new(Some(name.to_string()), 7),
+            ..data.training()
+        }
+    }
+    let (data, nudged) = (&data, &nudged);
+    let settings = EstimatorSettings::default();
+    let bench = Workbench::new();
+    for (k, method) in [Method::Gp, Method::Continuous].into_iter().enumerate() {
+        let json = |e: Box<dyn PoseEstimator>| e.to_json().unwrap();
+        let first = json(bench.fit(method, &settings, &with(data, "a")).unwrap());
+        let second = json(bench.fit(method, &settings, &with(data, "b")).unwrap());
+        assert_eq!(
+            bench.shared_fits(),
+            2 * k + 1,
+            "{method}: one fit for both runs"
+        );
+        assert_eq!(
+            second,
+            json(method.fit(&settings, &with(data, "b")).unwrap())
+        );
+        assert_ne!(first, second, "{method}: each run keeps its own provenance");
+        assert_eq!(first.replace("\"a\"", "\"b\""), second);
+        let changed = json(bench.fit(method, &settings, &with(nudged, "b")).unwrap());
+        assert_eq!(
+            bench.shared_fits(),
+            2 * k + 2,
+            "{method}: changed data, new fit"
+        );
+        assert_eq!(
+            changed,
+            json(method.fit(&settings, &with(nudged, "b")).unwrap())
+        );
+        assert_ne!(changed, second);
+    }
+    // Methods with cheap fits are fitted on every call and never held.
+    let knn = bench.fit(Method::Knn, &settings, &with(data, "a")).unwrap();
+    assert_eq!(knn.method(), "knn");
+    assert_eq!(bench.shared_fits(), 4);
 }

@@ -396,6 +396,12 @@ impl PoseEstimator for Gp {
     fn to_json(&self) -> Result<String, EstimatorError> {
         write_file(&self.file)
     }
+
+    fn with_provenance(&self, provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
+        let mut copy = self.clone();
+        copy.file.provenance = provenance.clone();
+        Some(Box::new(copy))
+    }
 }
 
 fn pose_rows(poses: &[[f64; 2]]) -> Vec<Vec<f64>> {

@@ -270,6 +270,14 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
     fn as_evidential(&self) -> Option<&Evidential> {
         None
     }
+
+    /// The same fitted estimator recording `provenance` instead, for methods whose fit does not
+    /// depend on it and is worth sharing between runs on identical training data (`gp` and
+    /// `continuous`, whose Gaussian processes take most of a sweep's time; see
+    /// [`crate::experiment::Workbench::fit`]); `None` for the others.
+    fn with_provenance(&self, _provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
+        None
+    }
 }
 
 /// The settings of every method, as a scenario gives them.

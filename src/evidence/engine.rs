@@ -269,6 +269,14 @@ impl Engine {
                 Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
+        if std::env::var("EVSTAT").is_ok() {
+            eprintln!(
+                "STAT pairs {} out {} tbl {}",
+                cur.len() * b.len(),
+                out.len(),
+                mask + 1
+            );
+        }
         Ok((empty, kept))
     }
 

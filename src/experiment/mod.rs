@@ -195,8 +195,8 @@ pub fn run(
         let stage = format!("fit {method}");
         let clock = Instant::now();
         progress(&stage, 0, 1);
-        let estimator = method
-            .fit(&settings, &training)
+        let estimator = bench
+            .fit(method, &settings, &training)
             .map_err(|source| ExperimentError::Estimator { stage, source })?;
         let fit_seconds = clock.elapsed().as_secs_f64();
         let clock = Instant::now();

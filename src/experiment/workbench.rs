@@ -1,14 +1,20 @@
-//! Memoised datasets and feature rows, shared by the variants of a sweep (and its threads).
+//! Memoised datasets, feature rows and costly fits, shared by the variants of a sweep (and its
+//! threads).
 //!
-//! Every dataset is a pure function of its settings and seed, so results do not depend on which
-//! variant asked first.
+//! Every dataset is a pure function of its settings and seed, and every shared fit a pure
+//! function of its settings and training data, so results do not depend on which variant asked
+//! first.
 
 use std::collections::HashMap;
 use std::convert::Infallible;
+use std::hash::Hash;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use super::ExperimentError;
 use crate::dataset::Dataset;
+use crate::estimator::{
+    EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimator, TrainingSet,
+};
 use crate::features::{FeatureConfig, FeatureRows, FeatureSet};
 use crate::sim::{Motion, SimError, SimSettings};
 
@@ -28,13 +34,18 @@ pub enum Step {
 pub struct Workbench {
     datasets: Mutex<HashMap<String, Shared<Dataset, Arc<SimError>>>>,
     features: Mutex<HashMap<String, Shared<FeatureRows, Infallible>>>,
+    /// Fits of the methods that share them (`gp`, `continuous`), keyed by [`fit_key`]; `None`
+    /// when the fit failed (each later caller then fits again for its own error).
+    fits: Mutex<HashMap<Vec<u8>, SharedFit>>,
     /// Threads one simulation or extraction may use (0 and 1: the calling thread only).
     threads: usize,
 }
 
-fn memo<T, E: Clone>(
-    map: &Mutex<HashMap<String, Shared<T, E>>>,
-    key: String,
+type SharedFit = Arc<OnceLock<Option<Arc<dyn PoseEstimator>>>>;
+
+fn memo<K: Hash + Eq, T, E: Clone>(
+    map: &Mutex<HashMap<K, Shared<T, E>>>,
+    key: K,
     make: impl FnOnce() -> Result<T, E>,
 ) -> Result<Arc<T>, E> {
     let cell = {
@@ -110,5 +121,96 @@ impl Workbench {
             Ok::<_, Infallible>(rows)
         });
         Ok(rows.unwrap_or_else(|never| match never {}))
+    }
+
+    /// How many distinct shared fits the workbench holds.
+    pub fn shared_fits(&self) -> usize {
+        self.fits.lock().unwrap_or_else(|e| e.into_inner()).len()
+    }
+
+    /// `method` fitted on `data` with `settings`. Methods that share fits are fitted once per
+    /// distinct settings and training data and handed out with `data`'s provenance; the others
+    /// are fitted on every call.
+    ///
+    /// # Errors
+    /// The method's fitting errors.
+    pub fn fit(
+        &self,
+        method: Method,
+        settings: &EstimatorSettings,
+        data: &TrainingSet,
+    ) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
+        let Some(key) = fit_key(method, settings, data) else {
+            return method.fit(settings, data);
+        };
+        let cell = {
+            let mut guard = self.fits.lock().unwrap_or_else(|e| e.into_inner());
+            guard.entry(key).or_default().clone()
+        };
+        let mut failure = None;
+        let shared = cell.get_or_init(|| match method.fit(settings, data) {
+            Ok(fitted) => Some(Arc::from(fitted)),
+            Err(error) => {
+                failure = Some(error);
+                None
+            }
+        });
+        if let Some(error) = failure {
+            return Err(error);
+        }
+        match shared
+            .as_ref()
+            .and_then(|f| f.with_provenance(&data.provenance))
+        {
+            Some(fitted) => Ok(fitted),
+            None => method.fit(settings, data),
+        }
+    }
+}
+
+/// Everything a shared fit depends on, as bytes: the method, its settings, the features and
+/// the training and validation data bit for bit (not the provenance). `None` for methods that
+/// do not share fits.
+fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> Option<Vec<u8>> {
+    let method_settings = match method {
+        Method::Gp => serde_json::to_string(&settings.gp),
+        Method::Continuous => serde_json::to_string(&settings.continuous),
+        _ => return None,
+    }
+    .ok()?;
+    let header = serde_json::json!({
+        "method": method,
+        "settings": method_settings,
+        "features": data.feature_names,
+        "config": data.feature_config,
+        "missing_penalty": data.missing_penalty.to_bits(),
+    });
+    let mut key = serde_json::to_vec(&header).ok()?;
+    append_labelled(&mut key, &data.sample);
+    if let Some(validation) = &data.validation {
+        key.push(b'V');
+        append_labelled(&mut key, validation);
+    }
+    Some(key)
+}
+
+/// Appends the poses and feature rows bit for bit (missing values tagged apart from numbers).
+fn append_labelled(key: &mut Vec<u8>, set: &Labelled) {
+    key.extend((set.poses.len() as u64).to_le_bytes());
+    for pose in set.poses {
+        key.extend(pose[0].to_bits().to_le_bytes());
+        key.extend(pose[1].to_bits().to_le_bytes());
+    }
+    for row in set.rows {
+        key.push(b'|');
+        for value in row {
+            match value {
+                Some(v) => {
+                    key.push(1);
+                    key.extend(v.to_bits().to_le_bytes());
+                }
+                None => key.push(0),
+            }
+        }
     }
 }

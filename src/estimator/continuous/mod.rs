@@ -615,6 +615,12 @@ impl PoseEstimator for Continuous {
     fn to_json(&self) -> Result<String, EstimatorError> {
         write_file(&self.file)
     }
+
+    fn with_provenance(&self, provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
+        let mut copy = self.clone();
+        copy.file.provenance = provenance.clone();
+        Some(Box::new(copy))
+    }
 }
 
 /// σ_i: the RMS over the validation frames of y_i − f_i(true pose) (frames where the feature is
