@@ -17,4 +17,5 @@ mod reference;
 mod reliability;
 mod scheduler;
 mod sim;
+mod temporal;
 mod track;

@@ -263,15 +263,19 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         Some(path) => {
             let data = read_dataset(path)?;
             check_polarity(&config, &data, &path.display().to_string())?;
-            Some(DatasetFeatures {
-                poses: data.truth_positions().with_context(|| {
-                    format!(
-                        "{} has frames without ground-truth poses: validation needs them",
-                        path.display()
-                    )
-                })?,
-                rows: extract_with_progress(&set, &data),
-            })
+            let times: Vec<f64> = data.frames.iter().map(|f| f.t).collect();
+            Some((
+                DatasetFeatures {
+                    poses: data.truth_positions().with_context(|| {
+                        format!(
+                            "{} has frames without ground-truth poses: validation needs them",
+                            path.display()
+                        )
+                    })?,
+                    rows: extract_with_progress(&set, &data),
+                },
+                times,
+            ))
         }
         None => None,
     };
@@ -279,7 +283,8 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         feature_names: &names,
         feature_config: Some(&config),
         sample: sample.labelled(),
-        validation: validation.as_ref().map(DatasetFeatures::labelled),
+        validation: validation.as_ref().map(|(v, _)| v.labelled()),
+        validation_times: validation.as_ref().map(|(_, t)| t.as_slice()),
         missing_penalty: missing_penalty(&dataset),
         provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };
@@ -477,8 +482,9 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "dataset".into());
     let mut records = Vec::with_capacity(dataset.len());
+    let mut motion = estimator.start_motion();
     for (i, frame) in dataset.frames.iter().enumerate() {
-        let estimate = estimator.estimate(&set.extract(&frame.image))?;
+        let estimate = motion.next(frame.t, &set.extract(&frame.image))?;
         let truth = frame.truth.map(|t| [t.x, t.y]);
         records.push(FrameRecord::new(
             estimator.method(),

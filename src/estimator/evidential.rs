@@ -240,21 +240,7 @@ impl PoseEstimator for Evidential {
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let frame = self.track(features)?;
-        Ok(PoseEstimate {
-            pose: frame.estimate,
-            uncertainty_radius: frame.uncertainty.map(|u| u.radius),
-            group: Some(frame.group),
-            conflict_level: frame.conflict_level,
-            detection_score: frame.full_conflict_level,
-            region: None,
-            flags: EstimateFlags {
-                missing: frame.flags.missing().collect(),
-                excluded: frame.flags.excluded,
-                fallback: frame.flags.fallback,
-                combination_failed: frame.flags.combination_failed,
-            },
-        })
+        Ok(pose_estimate(self.track(features)?))
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
@@ -263,6 +249,25 @@ impl PoseEstimator for Evidential {
 
     fn as_evidential(&self) -> Option<&Evidential> {
         Some(self)
+    }
+}
+
+/// The seam's view of one frame of the tracker.
+pub(super) fn pose_estimate(frame: FrameEstimate) -> PoseEstimate {
+    PoseEstimate {
+        pose: frame.estimate,
+        uncertainty_radius: frame.uncertainty.map(|u| u.radius),
+        group: Some(frame.group),
+        conflict_level: frame.conflict_level,
+        detection_score: frame.full_conflict_level,
+        region: None,
+        flags: EstimateFlags {
+            missing: frame.flags.missing().collect(),
+            excluded: frame.flags.excluded,
+            fallback: frame.flags.fallback,
+            combination_failed: frame.flags.combination_failed,
+            ..EstimateFlags::default()
+        },
     }
 }
 

@@ -12,7 +12,9 @@ mod continuous;
 mod evidential;
 mod gp;
 mod knn;
+mod particle;
 pub mod synthetic;
+mod temporal;
 
 pub use centre::{Centre, CentreSettings};
 pub use continuous::{
@@ -21,6 +23,10 @@ pub use continuous::{
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
+pub use particle::{ParticleFilter, ParticleSettings};
+pub use temporal::{
+    TemporalEvidential, TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES,
+};
 
 use std::path::Path;
 
@@ -96,11 +102,28 @@ pub enum Method {
     /// The continuous evidential tracker: feature maps learned as smooth functions of the pose,
     /// likelihood-based consonant functions, the paper's selection ([`Continuous`]).
     Continuous,
+    /// The paper's tracker with the belief of the last frame carried on by a motion model
+    /// ([`TemporalEvidential`]).
+    EvidentialTemporal,
+    /// A particle filter with the continuous tracker's feature maps as likelihood and the same
+    /// motion model ([`ParticleFilter`]).
+    ParticleFilter,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: [Method; 5] = [
+    pub const ALL: [Method; 7] = [
+        Method::Evidential,
+        Method::EvidentialTemporal,
+        Method::Continuous,
+        Method::Knn,
+        Method::Gp,
+        Method::ParticleFilter,
+        Method::Centre,
+    ];
+
+    /// The methods a scenario runs unless it lists its own: the per-frame ones.
+    pub const PER_FRAME: [Method; 5] = [
         Method::Evidential,
         Method::Continuous,
         Method::Knn,
@@ -116,6 +139,8 @@ impl Method {
             Method::Gp => "gp",
             Method::Centre => "centre",
             Method::Continuous => "continuous",
+            Method::EvidentialTemporal => "evidential_temporal",
+            Method::ParticleFilter => "particle_filter",
         }
     }
 }
@@ -213,11 +238,17 @@ pub struct EstimateFlags {
     pub fallback: bool,
     /// Combining the chosen features gave no usable result.
     pub combination_failed: bool,
+    /// The frame had no usable measurement, so the estimate is the motion model's prediction
+    /// from the past frames (temporal methods).
+    pub predicted: bool,
+    /// The belief carried from the past frames conflicted with this frame's and was left out:
+    /// the past was dropped and tracking restarts from this frame (temporal evidential tracker).
+    pub past_rejected: bool,
 }
 
 impl PoseEstimate {
     /// The flags as short words (`missing:…`, `excluded:…`, `fallback`, `combination_failed`,
-    /// `no_estimate`) with feature `names`; empty when the frame is clean.
+    /// `predicted`, `past_rejected`, `no_estimate`) with feature `names`; empty when the frame is clean.
     pub fn flag_words(&self, names: &[String]) -> String {
         let joined = |list: &[usize]| {
             list.iter()
@@ -238,6 +269,12 @@ impl PoseEstimate {
         }
         if flags.combination_failed {
             parts.push("combination_failed".into());
+        }
+        if flags.predicted {
+            parts.push("predicted".into());
+        }
+        if flags.past_rejected {
+            parts.push("past_rejected".into());
         }
         if self.pose.is_none() {
             parts.push("no_estimate".into());
@@ -266,6 +303,12 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
     /// The self-contained model file (JSON) that [`load`] reads back.
     fn to_json(&self) -> Result<String, EstimatorError>;
 
+    /// A tracker of one motion, fed its frames in order: temporal methods carry what the past
+    /// frames showed; the others estimate each frame alone (the default).
+    fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
+        Box::new(FrameByFrame(self))
+    }
+
     /// The evidential tracker behind this estimator, if it is one (for its model's details).
     fn as_evidential(&self) -> Option<&Evidential> {
         None
@@ -280,6 +323,29 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
     }
 }
 
+/// One motion's frames, estimated in order by [`PoseEstimator::start_motion`]'s tracker.
+pub trait MotionTracker {
+    /// Estimates the next frame, taken at `time` (s), from its feature values.
+    ///
+    /// # Errors
+    /// As [`PoseEstimator::estimate`].
+    fn next(&mut self, time: f64, features: &[Option<f64>])
+        -> Result<PoseEstimate, EstimatorError>;
+}
+
+/// The tracker of a per-frame method: every frame alone.
+struct FrameByFrame<'a, E: ?Sized>(&'a E);
+
+impl<E: PoseEstimator + ?Sized> MotionTracker for FrameByFrame<'_, E> {
+    fn next(
+        &mut self,
+        _time: f64,
+        features: &[Option<f64>],
+    ) -> Result<PoseEstimate, EstimatorError> {
+        self.0.estimate(features)
+    }
+}
+
 /// The settings of every method, as a scenario gives them.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct EstimatorSettings {
@@ -291,6 +357,10 @@ pub struct EstimatorSettings {
     pub gp: GpSettings,
     /// The continuous evidential tracker's.
     pub continuous: ContinuousSettings,
+    /// The motion model and the carried belief's reliability (temporal methods).
+    pub temporal: TemporalSettings,
+    /// The particle filter's.
+    pub particle_filter: ParticleSettings,
 }
 
 impl Method {
@@ -309,6 +379,17 @@ impl Method {
             Method::Gp => Box::new(Gp::fit(&settings.gp, data)?),
             Method::Centre => Box::new(Centre::fit(&CentreSettings::default(), data)?),
             Method::Continuous => Box::new(Continuous::fit(&settings.continuous, data)?),
+            Method::EvidentialTemporal => Box::new(TemporalEvidential::fit(
+                &settings.evidential,
+                &settings.temporal,
+                data,
+            )?),
+            Method::ParticleFilter => Box::new(ParticleFilter::fit(
+                &settings.particle_filter,
+                &settings.temporal,
+                &settings.continuous,
+                data,
+            )?),
         })
     }
 }
@@ -334,6 +415,8 @@ pub struct TrainingSet<'a> {
     pub sample: Labelled<'a>,
     /// A validation motion, for what a method learns on held-out frames.
     pub validation: Option<Labelled<'a>>,
+    /// The validation frames' times (s), for what temporal methods learn there.
+    pub validation_times: Option<&'a [f64]>,
     /// The error a validation frame without an estimate counts as (mm): the workspace diagonal.
     pub missing_penalty: f64,
     /// Where the model comes from.
@@ -350,6 +433,7 @@ impl<'a> TrainingSet<'a> {
             feature_config: None,
             sample,
             validation: None,
+            validation_times: None,
             missing_penalty: bounding_diagonal(sample.poses),
             provenance: Provenance::new(None, 0),
         }
@@ -462,13 +546,17 @@ pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         Some(Gp::METHOD) => Box::new(Gp::load(path)?),
         Some(Centre::METHOD) => Box::new(Centre::load(path)?),
         Some(Continuous::METHOD) => Box::new(Continuous::load(path)?),
+        Some(TemporalEvidential::METHOD) => Box::new(TemporalEvidential::load(path)?),
+        Some(ParticleFilter::METHOD) => Box::new(ParticleFilter::load(path)?),
         Some(crate::model::METHOD) | None => Box::new(Evidential::load(path)?),
         Some(other) => {
             return Err(ModelError::File {
                 path: path.to_path_buf(),
                 source: Box::new(ModelError::Corrupted(format!(
-                "unknown method `{other}`: this build reads `{}`, `{}`, `{}`, `{}` and `{}` model files",
+                "unknown method `{other}`: this build reads `{}`, `{}`, `{}`, `{}`, `{}`, `{}` and `{}` model files",
                 crate::model::METHOD,
+                TemporalEvidential::METHOD,
+                ParticleFilter::METHOD,
                 Continuous::METHOD,
                 Knn::METHOD,
                 Gp::METHOD,

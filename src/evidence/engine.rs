@@ -201,21 +201,26 @@ impl Engine {
     /// Add mass `m` to the set `x` (hash `h`): merge with an equal set already in `out`, or append
     /// unless `out` holds `max_sets` sets already. Table entries hold the set's index in the low
     /// 32 bits and a hash tag in the high 32 bits, so most mismatches are rejected without
-    /// touching the arena.
+    /// touching the arena. `first`, when given, is the entry at the first probed slot, read
+    /// earlier. Returns whether a slot was written.
     #[inline(always)]
     fn insert(
         table: &mut [u64],
         mask: usize,
         out: &mut Arena,
         (x, h, m): (&[u64], u64, f64),
+        first: Option<u64>,
         max_sets: usize,
-    ) -> Result<(), OverLimit> {
+    ) -> Result<bool, OverLimit> {
         let w = x.len();
         let hf = fold_mul(h, MIX);
         let tag = hf & 0xFFFF_FFFF_0000_0000;
         let mut pos = (hf as usize) & mask;
+        let mut e = match first {
+            Some(e) => e,
+            None => table[pos],
+        };
         loop {
-            let e = table[pos];
             if e == EMPTY_SLOT {
                 if out.mass.len() >= max_sets {
                     return Err(OverLimit);
@@ -223,7 +228,7 @@ impl Engine {
                 table[pos] = tag | out.mass.len() as u64;
                 out.mass.push(m);
                 out.words.extend_from_slice(x);
-                return Ok(());
+                return Ok(true);
             }
             if e & 0xFFFF_FFFF_0000_0000 == tag {
                 let i = (e & 0xFFFF_FFFF) as usize;
@@ -231,10 +236,11 @@ impl Engine {
                 // Word loop rather than slice equality, which would call memcmp.
                 if stored.iter().zip(x).all(|(a, b)| a == b) {
                     out.mass[i] += m;
-                    return Ok(());
+                    return Ok(false);
                 }
             }
             pos = (pos + 1) & mask;
+            e = table[pos];
         }
     }
 
@@ -244,38 +250,48 @@ impl Engine {
         b: &Arena,
         out: &mut Arena,
     ) -> Result<(f64, f64), OverLimit> {
+        const ROW: usize = 4;
         let mut mask = self.prepare(cur.len() * b.len(), out);
         let mut keys = [0u64; W];
         keys.copy_from_slice(&self.keys[..W]);
         let mut empty = 0.0;
         let mut kept = 0.0;
-        for (a, &ma) in cur.words.chunks_exact(W).zip(&cur.mass) {
-            for (bw, &mb) in b.words.chunks_exact(W).zip(&b.mass) {
-                let mut x = [0u64; W];
-                let mut any = 0u64;
-                for k in 0..W {
-                    x[k] = a[k] & bw[k];
-                    any |= x[k];
+        let (cw, _) = cur.words.as_chunks::<W>();
+        let (bw, _) = b.words.as_chunks::<W>();
+        for (a, &ma) in cw.iter().zip(&cur.mass) {
+            for (bs, mbs) in bw.chunks(ROW).zip(b.mass.chunks(ROW)) {
+                // Up to ROW pairs at a time: intersections, hashes and first table entries first,
+                // so that their cache misses overlap, then the inserts in pair order.
+                let mut xs = [[0u64; W]; ROW];
+                let mut hs = [0u64; ROW];
+                let mut es = [EMPTY_SLOT; ROW];
+                let mut anys = [0u64; ROW];
+                for (j, bk) in bs.iter().enumerate() {
+                    let mut any = 0u64;
+                    for k in 0..W {
+                        xs[j][k] = a[k] & bk[k];
+                        any |= xs[j][k];
+                    }
+                    anys[j] = any;
+                    hs[j] = hash_words(&xs[j], &keys);
+                    es[j] = self.table[(fold_mul(hs[j], MIX) as usize) & mask];
                 }
-                if any == 0 {
-                    empty += ma * mb;
-                    continue;
+                let mut dirty = false;
+                for (j, &mb) in mbs.iter().enumerate() {
+                    if anys[j] == 0 {
+                        empty += ma * mb;
+                        continue;
+                    }
+                    if 2 * out.len() >= mask {
+                        mask = self.grow(out);
+                        dirty = true;
+                    }
+                    kept += ma * mb;
+                    let first = (!dirty).then_some(es[j]);
+                    let item = (&xs[j][..], hs[j], ma * mb);
+                    dirty |= Self::insert(&mut self.table, mask, out, item, first, self.max_sets)?;
                 }
-                let h = hash_words(&x, &keys);
-                if 2 * out.len() >= mask {
-                    mask = self.grow(out);
-                }
-                kept += ma * mb;
-                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
-        }
-        if std::env::var("EVSTAT").is_ok() {
-            eprintln!(
-                "STAT pairs {} out {} tbl {}",
-                cur.len() * b.len(),
-                out.len(),
-                mask + 1
-            );
         }
         Ok((empty, kept))
     }
@@ -307,7 +323,14 @@ impl Engine {
                     mask = self.grow(out);
                 }
                 kept += ma * mb;
-                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
+                Self::insert(
+                    &mut self.table,
+                    mask,
+                    out,
+                    (&x, h, ma * mb),
+                    None,
+                    self.max_sets,
+                )?;
             }
         }
         Ok((empty, kept))
@@ -353,7 +376,7 @@ impl Engine {
                 mask = self.grow(out);
             }
             let m = (l - top).exp();
-            Self::insert(&mut self.table, mask, out, (&x, h, m), self.max_sets)?;
+            Self::insert(&mut self.table, mask, out, (&x, h, m), None, self.max_sets)?;
         }
         Ok(Some(top))
     }

@@ -116,9 +116,9 @@ pub fn run(
         Some(motion) => {
             let seed = seed::for_part(master, ScenarioPart::Validation);
             let what = VALIDATION_STAGE;
-            let (truth, _, rows) =
+            let (truth, times, rows) =
                 labelled_motion(scenario, bench, motion, seed, what, progress, &mut timings)?;
-            Some((truth, rows))
+            Some((truth, times, rows))
         }
         None => None,
     };
@@ -173,6 +173,8 @@ pub fn run(
         knn: s.knn.clone(),
         gp: s.gp.clone(),
         continuous: s.continuous.clone(),
+        temporal: s.temporal.clone(),
+        particle_filter: s.particle_filter.clone(),
     };
     let training = TrainingSet {
         feature_names: &names,
@@ -183,7 +185,8 @@ pub fn run(
         },
         validation: validation
             .as_ref()
-            .map(|(truth, rows)| Labelled { poses: truth, rows }),
+            .map(|(truth, _, rows)| Labelled { poses: truth, rows }),
+        validation_times: validation.as_ref().map(|(_, times, _)| times.as_slice()),
         missing_penalty: missing_penalty(sim),
         provenance: Provenance::new(Some(s.name.clone()), master)
             .with_workspace(Some(sim.geometry.workspace)),
@@ -206,11 +209,12 @@ pub fn run(
         let frames: usize = tests.iter().map(|t| t.3.len()).sum();
         for (label, truth, times, rows, faults) in &tests {
             let mut errors = Vec::new();
+            let mut motion = estimator.start_motion();
             for (i, row) in rows.iter().enumerate() {
                 progress(&track_stage, method_records.len(), frames);
                 let estimate =
-                    estimator
-                        .estimate(row)
+                    motion
+                        .next(times[i], row)
                         .map_err(|source| ExperimentError::Estimator {
                             stage: format!("{method} on {label}"),
                             source,

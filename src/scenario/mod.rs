@@ -13,8 +13,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
 use crate::estimator::{
-    ContinuousSettings, GpSettings, KnnSettings, Method, MAX_CONTINUOUS_FEATURES,
-    MAX_FEATURES_GROUP_ERRORS,
+    ContinuousSettings, GpSettings, KnnSettings, Method, ParticleSettings, TemporalSettings,
+    MAX_CONTINUOUS_FEATURES, MAX_FEATURES_GROUP_ERRORS,
 };
 use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
@@ -179,8 +179,13 @@ pub struct Scenario {
     pub knn: KnnSettings,
     /// The Gaussian process's settings (`[gp]`).
     pub gp: GpSettings,
-    /// The continuous evidential tracker's settings (`[continuous]`).
+    /// The continuous evidential tracker's settings (`[continuous]`; the particle filter's
+    /// feature maps are fitted with them too).
     pub continuous: ContinuousSettings,
+    /// The temporal methods' motion model and the carried belief's reliability (`[temporal]`).
+    pub temporal: TemporalSettings,
+    /// The particle filter's settings (`[particle_filter]`).
+    pub particle_filter: ParticleSettings,
     /// Regression expectations.
     pub expect: Expectations,
     /// The paper's figure for this setup, printed beside ours.
@@ -210,10 +215,12 @@ impl Default for Scenario {
             track: TrackSettings::default(),
             learn_threshold: false,
             threshold_rule: ThresholdRule::default(),
-            estimators: Method::ALL.to_vec(),
+            estimators: Method::PER_FRAME.to_vec(),
             knn: KnnSettings::default(),
             gp: GpSettings::default(),
             continuous: ContinuousSettings::default(),
+            temporal: TemporalSettings::default(),
+            particle_filter: ParticleSettings::default(),
             expect: Expectations::default(),
             paper_error: None,
             sweep: Sweep::default(),
@@ -289,7 +296,28 @@ impl Scenario {
         if self.estimators.contains(&Method::Gp) {
             self.gp.check().map_err(|e| invalid(format!("[gp]: {e}")))?;
         }
-        if self.estimators.contains(&Method::Continuous) {
+        let runs = |methods: &[Method]| self.estimators.iter().any(|m| methods.contains(m));
+        if runs(&[Method::EvidentialTemporal, Method::ParticleFilter]) {
+            self.temporal
+                .check()
+                .map_err(|e| invalid(format!("[temporal]: {e}")))?;
+        }
+        if runs(&[Method::ParticleFilter]) {
+            self.particle_filter
+                .check()
+                .map_err(|e| invalid(format!("[particle_filter]: {e}")))?;
+        }
+        if runs(&[Method::EvidentialTemporal])
+            && matches!(self.track.selection, SelectionPolicy::Splitting { .. })
+        {
+            return Err(invalid(
+                "[track]: the temporal evidential tracker takes `selection` largest_subset or \
+                 lowest_conflict, not splitting: list the methods without \"evidential_temporal\" \
+                 in `estimators`"
+                    .into(),
+            ));
+        }
+        if runs(&[Method::Continuous, Method::ParticleFilter]) {
             self.continuous
                 .check()
                 .map_err(|e| invalid(format!("[continuous]: {e}")))?;
@@ -297,7 +325,7 @@ impl Scenario {
                 return Err(invalid(format!(
                     "[features]: {} features, but the continuous tracker takes at most \
                      {MAX_CONTINUOUS_FEATURES}: use fewer size-function lines, or list the methods \
-                     without \"continuous\" in `estimators`",
+                     without \"continuous\" and \"particle_filter\" in `estimators`",
                     features.len()
                 )));
             }
@@ -312,7 +340,7 @@ impl Scenario {
         }
         // What only the evidential tracker limits (its groups are bit masks, its states per
         // feature are listed per feature).
-        if self.estimators.contains(&Method::Evidential) {
+        if runs(&[Method::Evidential, Method::EvidentialTemporal]) {
             if features.len() > MAX_FEATURES {
                 return Err(invalid(format!(
                     "[features]: {} features, but the tracker takes at most {MAX_FEATURES}: use fewer \

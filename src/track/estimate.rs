@@ -10,7 +10,11 @@ use crate::evidence::{dempster_all, MassFunction};
 impl Tracker {
     /// Relative plausibility of the sample poses under a group: the normalised product of the
     /// members' contours (the fast path; equal to the relative plausibility of the combination).
-    fn plausibility(&self, group: GroupMask, usable: &[Option<Usable>]) -> Option<Vec<f64>> {
+    pub(super) fn plausibility(
+        &self,
+        group: GroupMask,
+        usable: &[Option<Usable>],
+    ) -> Option<Vec<f64>> {
         let cells = self.cell_count();
         let mut w = vec![1.0; cells];
         for (u, wu) in w.iter_mut().enumerate() {
@@ -138,7 +142,7 @@ impl Tracker {
 
     /// The pose the estimator reads off `weights` over the sample poses (the most weighted pose
     /// for MAP, the weighted mean otherwise), with the uncertainty of the weights around it.
-    fn estimate_from(&self, weights: &[f64]) -> Option<([f64; 2], Uncertainty)> {
+    pub(super) fn estimate_from(&self, weights: &[f64]) -> Option<([f64; 2], Uncertainty)> {
         let poses = self.model.poses();
         let estimate = match self.settings.estimator {
             Estimator::Map => {

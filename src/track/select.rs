@@ -518,9 +518,9 @@ fn every_clique(
 }
 
 /// The paper's tracker seen by the selection: its cells, pairwise and group levels.
-struct CellLevels<'a> {
-    tracker: &'a Tracker,
-    usable: &'a [Option<Usable>],
+pub(super) struct CellLevels<'a> {
+    pub(super) tracker: &'a Tracker,
+    pub(super) usable: &'a [Option<Usable>],
     /// Bayesian levels grown along the search's walk.
     tuples: TupleStack,
 }
@@ -549,13 +549,18 @@ impl GroupLevels for CellLevels<'_> {
 }
 
 impl Tracker {
-    /// Choose the group to combine among the usable features (`usable_mask`, not empty).
-    pub(super) fn select(&self, usable: &[Option<Usable>], usable_mask: GroupMask) -> Selection {
-        let mut levels = CellLevels {
+    /// The selection's view of a frame's usable features.
+    pub(super) fn cell_levels<'a>(&'a self, usable: &'a [Option<Usable>]) -> CellLevels<'a> {
+        CellLevels {
             tracker: self,
             usable,
             tuples: TupleStack::default(),
-        };
+        }
+    }
+
+    /// Choose the group to combine among the usable features (`usable_mask`, not empty).
+    pub(super) fn select(&self, usable: &[Option<Usable>], usable_mask: GroupMask) -> Selection {
+        let mut levels = self.cell_levels(usable);
         select_group(
             &mut levels,
             usable.len(),

@@ -157,7 +157,7 @@ pub(super) struct Usable {
 
 impl FrameEstimate {
     /// A frame with no estimate and no combined group; `flags` say why.
-    fn without_estimate(flags: FrameFlags) -> Self {
+    pub(super) fn without_estimate(flags: FrameFlags) -> Self {
         Self {
             estimate: None,
             group: Vec::new(),

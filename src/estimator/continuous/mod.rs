@@ -397,6 +397,21 @@ impl Continuous {
         values
     }
 
+    /// [`Continuous::feature_map`] into `out` (one value per feature), without allocating.
+    pub(crate) fn feature_map_into(&self, q: [f64; 2], out: &mut [f64]) {
+        self.surrogate.eval(q, out, None);
+    }
+
+    /// Each feature's range over the sample poses.
+    pub(crate) fn feature_ranges(&self) -> &[(f64, f64)] {
+        &self.ranges
+    }
+
+    /// The sample poses' bounding box (lowest, highest corner).
+    pub(crate) fn sample_bounds(&self) -> ([f64; 2], [f64; 2]) {
+        self.bounds
+    }
+
     /// The combined contour of the features in `group` (indices) at pose `q`, relative to its
     /// height over the poses: Pl(q)/sup Pl. `None` when a named feature is missing in the frame.
     ///

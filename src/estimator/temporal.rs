@@ -1,0 +1,380 @@
+//! The temporal evidential tracker (issue 17): the paper's tracker, with the belief of the last
+//! frame carried to the next by a motion model and taking part in its conflict graph.
+//!
+//! - The motion model: a pose reaches every pose within `max_speed` × Δt in a frame interval Δt
+//!   (the frames' own timestamps). The carried belief is consonant; moving it maps each focal
+//!   set onto the poses it can reach, so its contour becomes the dilation
+//!   π′(p) = max {π(q) : |q − p| ≤ max_speed·Δt}.
+//! - Discounting by the reliability α (fixed, or learned on the validation motion): the carried
+//!   contour is c = 1 − α + α·π′, so the past can never be in total conflict with a frame.
+//! - The frame's features and the carried belief form one conflict graph
+//!   ([`crate::track::Tracker::track_with_past`]): a frame that contradicts the past shows as
+//!   conflict, and when the past is left out (`past_rejected`) it is dropped, not followed.
+//! - What is carried on is the contour of the chosen combination (the consonant function with
+//!   that contour), scaled to maximum 1.
+//! - A frame without a usable feature gets the prediction: the estimate of π′ alone
+//!   (`predicted`), and π′ is carried on, so the reach keeps growing until a frame is usable.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::centre::{corrupted, parse_file, write_file};
+use super::evidential::pose_estimate;
+use super::{
+    EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
+    TrainingSet,
+};
+use crate::features::FeatureConfig;
+use crate::model::{EvidentialModel, ModelError};
+use crate::range::within;
+use crate::report::distance;
+use crate::track::SelectionPolicy;
+
+/// The motion model and the reliability of the carried belief (`[temporal]` in scenarios).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TemporalSettings {
+    /// The fastest the end effector moves (mm/s): the reach of one frame interval is
+    /// `max_speed` × Δt. The simulated rig follows paths at 43 mm/s within micrometres.
+    pub max_speed: f64,
+    /// Reliability α ∈ [0, 1] of the carried belief; `None` learns it on the validation motion
+    /// (the candidate with the lowest mean error, [`RELIABILITY_CANDIDATES`]), or takes
+    /// [`DEFAULT_RELIABILITY`] without one.
+    pub reliability: Option<f64>,
+}
+
+/// The reliabilities tried when learning α.
+pub const RELIABILITY_CANDIDATES: [f64; 6] = [0.5, 0.8, 0.9, 0.95, 0.98, 0.99];
+
+/// α when it is neither given nor learnable (no validation motion with timestamps).
+pub const DEFAULT_RELIABILITY: f64 = 0.9;
+
+impl Default for TemporalSettings {
+    fn default() -> Self {
+        Self {
+            max_speed: 50.0,
+            reliability: None,
+        }
+    }
+}
+
+impl TemporalSettings {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Training`] naming the field.
+    pub fn check(&self) -> Result<(), EstimatorError> {
+        if !(self.max_speed.is_finite() && self.max_speed > 0.0) {
+            return Err(EstimatorError::Training(format!(
+                "`temporal.max_speed` is {}: give the fastest speed of the end effector in mm/s \
+                 (> 0)",
+                self.max_speed
+            )));
+        }
+        if let Some(alpha) = self.reliability {
+            within(alpha, 0.0..=1.0)
+                .map_err(|e| EstimatorError::Training(format!("`temporal.reliability`: {e}")))?;
+        }
+        Ok(())
+    }
+}
+
+/// The temporal evidential tracker, fitted: the paper's tracker and the carried belief's
+/// settings.
+#[derive(Debug, Clone)]
+pub struct TemporalEvidential {
+    inner: Evidential,
+    file: TemporalFile,
+}
+
+/// The model file: the settings, the reliability used and the paper tracker's own model file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TemporalFile {
+    format_version: u32,
+    method: String,
+    settings: TemporalSettings,
+    reliability: f64,
+    reliability_learned: bool,
+    /// The evidential model file's text.
+    evidential_model: String,
+}
+
+impl TemporalEvidential {
+    /// Version of the model file format this build writes and reads.
+    pub const FORMAT_VERSION: u32 = 1;
+    /// The `method` of its model files.
+    pub const METHOD: &'static str = "evidential_temporal";
+
+    /// Fits the paper's tracker on `data`, then learns α on the validation motion when it is
+    /// not given.
+    ///
+    /// # Errors
+    /// Invalid settings (the splitting policy is refused); the evidential tracker's errors.
+    pub fn fit(
+        evidential: &EvidentialSettings,
+        settings: &TemporalSettings,
+        data: &TrainingSet,
+    ) -> Result<Self, EstimatorError> {
+        settings.check()?;
+        if let SelectionPolicy::Splitting { .. } = evidential.track.selection {
+            return Err(EstimatorError::Training(
+                "the temporal evidential tracker takes `track.selection` largest_subset or \
+                 lowest_conflict, not splitting (its alternatives are not weighed against the past)"
+                    .into(),
+            ));
+        }
+        let inner = Evidential::fit(evidential, data)?;
+        let mut fitted = Self::new(inner, settings.clone(), DEFAULT_RELIABILITY, false)?;
+        match (
+            settings.reliability,
+            &data.validation,
+            data.validation_times,
+        ) {
+            (Some(alpha), _, _) => fitted.file.reliability = alpha,
+            (None, Some(validation), Some(times)) => {
+                let mut best = (f64::INFINITY, DEFAULT_RELIABILITY);
+                for alpha in RELIABILITY_CANDIDATES {
+                    fitted.file.reliability = alpha;
+                    let error =
+                        fitted.mean_error(times, validation.rows, validation.poses, data)?;
+                    if error < best.0 {
+                        best = (error, alpha);
+                    }
+                }
+                fitted.file.reliability = best.1;
+                fitted.file.reliability_learned = true;
+            }
+            _ => {}
+        }
+        Ok(fitted)
+    }
+
+    fn new(
+        inner: Evidential,
+        settings: TemporalSettings,
+        reliability: f64,
+        reliability_learned: bool,
+    ) -> Result<Self, EstimatorError> {
+        let file = TemporalFile {
+            format_version: Self::FORMAT_VERSION,
+            method: Self::METHOD.into(),
+            settings,
+            reliability,
+            reliability_learned,
+            evidential_model: inner.to_json()?,
+        };
+        Ok(Self { inner, file })
+    }
+
+    /// Mean error over a motion (frames without an estimate count as the missing penalty).
+    fn mean_error(
+        &self,
+        times: &[f64],
+        rows: &[Vec<Option<f64>>],
+        truth: &[[f64; 2]],
+        data: &TrainingSet,
+    ) -> Result<f64, EstimatorError> {
+        let mut motion = self.start_motion();
+        let mut total = 0.0;
+        for ((&t, row), &q) in times.iter().zip(rows).zip(truth) {
+            total += motion
+                .next(t, row)?
+                .pose
+                .map_or(data.missing_penalty, |p| distance(p, q));
+        }
+        Ok(total / rows.len().max(1) as f64)
+    }
+
+    /// The settings it was fitted with.
+    pub fn settings(&self) -> &TemporalSettings {
+        &self.file.settings
+    }
+
+    /// The reliability α of the carried belief, and whether it was learned.
+    pub fn reliability(&self) -> (f64, bool) {
+        (self.file.reliability, self.file.reliability_learned)
+    }
+
+    /// The paper's tracker inside.
+    pub fn evidential(&self) -> &Evidential {
+        &self.inner
+    }
+
+    /// Reads a model file's text.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Model`] naming what is wrong.
+    pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
+        let file: TemporalFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        file.settings
+            .check()
+            .map_err(|e| corrupted(format!("settings: {e}")))?;
+        within(file.reliability, 0.0..=1.0).map_err(|e| corrupted(format!("reliability: {e}")))?;
+        let model = EvidentialModel::from_json(&file.evidential_model)
+            .map_err(|e| corrupted(format!("evidential_model: {e}")))?;
+        let inner = Evidential::from_model(model)?;
+        if let SelectionPolicy::Splitting { .. } = inner.model().track_settings().selection {
+            return Err(corrupted(
+                "evidential_model: the splitting policy is not taken with the past",
+            ));
+        }
+        Ok(Self { inner, file })
+    }
+
+    /// Reads a model file.
+    ///
+    /// # Errors
+    /// As [`TemporalEvidential::from_json`], naming the path.
+    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
+        let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_json(&text).map_err(|e| match e {
+            EstimatorError::Model(source) => ModelError::File {
+                path: path.to_path_buf(),
+                source: Box::new(source),
+            }
+            .into(),
+            other => other,
+        })
+    }
+}
+
+impl PoseEstimator for TemporalEvidential {
+    fn method(&self) -> &'static str {
+        Self::METHOD
+    }
+
+    fn feature_names(&self) -> &[String] {
+        self.inner.feature_names()
+    }
+
+    fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.inner.feature_config()
+    }
+
+    /// A frame alone has no past: the paper tracker's estimate.
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
+        self.inner.estimate(features)
+    }
+
+    fn to_json(&self) -> Result<String, EstimatorError> {
+        write_file(&self.file)
+    }
+
+    fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
+        Box::new(EvidentialMotion {
+            estimator: self,
+            past: None,
+        })
+    }
+}
+
+/// One motion under the temporal evidential tracker.
+struct EvidentialMotion<'a> {
+    estimator: &'a TemporalEvidential,
+    /// The last frame's time and the contour carried from it (max 1, before moving).
+    past: Option<(f64, Vec<f64>)>,
+}
+
+impl MotionTracker for EvidentialMotion<'_> {
+    fn next(
+        &mut self,
+        time: f64,
+        features: &[Option<f64>],
+    ) -> Result<PoseEstimate, EstimatorError> {
+        let inner = &self.estimator.inner;
+        let tracker = inner.tracker();
+        let Some((last, contour)) = self.past.take() else {
+            let frame = inner.track(features)?;
+            self.past = scaled_to_max(&frame.plausibility).map(|c| (time, c));
+            return Ok(pose_estimate(frame));
+        };
+        let reach = self.estimator.file.settings.max_speed * (time - last).max(0.0);
+        let moved = dilate(tracker.model().poses(), &contour, reach);
+        let alpha = self.estimator.file.reliability;
+        let carried: Vec<f64> = moved.iter().map(|&m| 1.0 - alpha + alpha * m).collect();
+        let likelihoods = inner.model().frames().likelihoods(features)?;
+        let outcome = tracker.track_with_past(&likelihoods, &carried)?;
+        let mut estimate = pose_estimate(outcome.frame.clone());
+        if outcome.frame.estimate.is_some() {
+            estimate.flags.past_rejected = !outcome.past_joined;
+            self.past = scaled_to_max(&outcome.frame.plausibility).map(|c| (time, c));
+            // Nothing to carry (not expected with an estimate): keep the moved past.
+            if self.past.is_none() {
+                self.past = Some((time, moved));
+            }
+            return Ok(estimate);
+        }
+        // No usable measurement: the prediction.
+        let total: f64 = moved.iter().sum();
+        let weights: Vec<f64> = moved.iter().map(|m| m / total).collect();
+        if let Some((pose, uncertainty)) = tracker.estimate_with_weights(&weights) {
+            estimate.pose = Some(pose);
+            estimate.uncertainty_radius = Some(uncertainty.radius);
+            estimate.flags.predicted = true;
+            estimate.flags.combination_failed = false;
+        }
+        self.past = Some((time, moved));
+        Ok(estimate)
+    }
+}
+
+/// The contour scaled to maximum 1; `None` when it has no positive finite maximum.
+fn scaled_to_max(contour: &[f64]) -> Option<Vec<f64>> {
+    let max = contour.iter().copied().fold(0.0f64, f64::max);
+    (max > 0.0 && max.is_finite()).then(|| contour.iter().map(|c| c / max).collect())
+}
+
+/// π′(p) = max {π(q) : |q − p| ≤ reach} over the poses.
+pub(super) fn dilate(poses: &[[f64; 2]], contour: &[f64], reach: f64) -> Vec<f64> {
+    if reach <= 0.0 {
+        return contour.to_vec();
+    }
+    let r2 = reach * reach;
+    poses
+        .iter()
+        .map(|p| {
+            poses
+                .iter()
+                .zip(contour)
+                .filter(|(q, _)| (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) <= r2)
+                .map(|(_, &c)| c)
+                .fold(0.0f64, f64::max)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dilation_spreads_each_value_over_its_reach() {
+        let poses = [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.5, 0.0]];
+        let contour = [0.0, 1.0, 0.2, 0.0];
+        assert_eq!(dilate(&poses, &contour, 0.0), contour.to_vec());
+        assert_eq!(dilate(&poses, &contour, 1.5), vec![1.0, 1.0, 1.0, 0.2]);
+        assert_eq!(dilate(&poses, &contour, 1.4), vec![1.0, 1.0, 1.0, 0.0]);
+        assert_eq!(dilate(&poses, &contour, 10.0), vec![1.0; 4]);
+    }
+
+    #[test]
+    fn settings_are_checked() {
+        let bad = |s: TemporalSettings| s.check().unwrap_err().to_string();
+        assert!(bad(TemporalSettings {
+            max_speed: 0.0,
+            ..TemporalSettings::default()
+        })
+        .contains("temporal.max_speed"));
+        assert!(bad(TemporalSettings {
+            reliability: Some(1.5),
+            ..TemporalSettings::default()
+        })
+        .contains("temporal.reliability"));
+        assert!(TemporalSettings::default().check().is_ok());
+    }
+}

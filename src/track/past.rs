@@ -1,0 +1,322 @@
+//! Tracking with the past (issue 17): the belief carried from the last frames takes part in a
+//! frame's conflict graph as one more node, after the features (bit `features` of a mask).
+//!
+//! The carried belief `C` is consonant, given by its contour `c` on the sample poses. Its level
+//! of conflict with a group A of features is exact and additive: 1 − K(A ∪ {C}) =
+//! (1 − K(A))·(1 − K(m_A, C)) for the normalised combination m_A of A, so
+//! level(A ∪ {C}) = level(A) + level(m_A, C); and a consonant C has Pl_C(F) = max of c over F, so
+//! 1 − K(m_A, C) = Σ_F m_A(F)·max_F c, with m_A combined on the cells (c enters through its
+//! maximum on each cell). Adding C to a group can only raise its level, so the pruned search
+//! stays exact.
+
+use std::collections::HashMap;
+
+use super::select::{members, select_group, CellLevels, GroupLevels, GroupMask, Selection};
+use super::settings::SelectionPolicy;
+use super::tracker::{FrameEstimate, FrameFlags, Tracker, Usable};
+use super::TrackError;
+use crate::evidence::dempster_all;
+
+/// What the past did in one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PastFrame {
+    /// The frame's estimate; its `plausibility` is that of the chosen combination (with the
+    /// carried belief when it joined).
+    pub frame: FrameEstimate,
+    /// Whether the carried belief was combined.
+    pub past_joined: bool,
+}
+
+/// The selection's view of a frame's features plus the carried belief.
+struct PastLevels<'a> {
+    cells: CellLevels<'a>,
+    /// The bit of the carried belief.
+    past: usize,
+    /// Max of the carried contour over each cell.
+    cell_max: Vec<f64>,
+    /// level(m_A, C) per feature group A.
+    memo: HashMap<GroupMask, f64>,
+}
+
+impl PastLevels<'_> {
+    /// level(m_A, C) of a non-empty feature group A: +∞ when A does not combine.
+    fn past_level(&mut self, group: GroupMask) -> f64 {
+        if let Some(&level) = self.memo.get(&group) {
+            return level;
+        }
+        let (tracker, usable) = (self.cells.tracker, self.cells.usable);
+        let combined = tracker
+            .on_cells(group, usable)
+            .and_then(|fs| dempster_all(&fs).ok())
+            .and_then(|c| c.mass);
+        let level = combined.map_or(f64::INFINITY, |m| {
+            let agree: f64 = m
+                .focal()
+                .map(|(set, mass)| {
+                    mass * set.iter().map(|u| self.cell_max[u]).fold(0.0f64, f64::max)
+                })
+                .sum();
+            if agree > 0.0 {
+                (-agree.ln()).max(0.0)
+            } else {
+                f64::INFINITY
+            }
+        });
+        self.memo.insert(group, level);
+        level
+    }
+}
+
+impl GroupLevels for PastLevels<'_> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        if j == self.past {
+            self.past_level(1 << i)
+        } else {
+            self.cells.pair_level(i, j)
+        }
+    }
+
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        if group >> self.past & 1 == 0 {
+            return self.cells.group_level(group);
+        }
+        let features = group & !(1 << self.past);
+        let own = if features.count_ones() >= 2 {
+            self.cells.group_level(features)
+        } else {
+            0.0
+        };
+        if own.is_finite() {
+            own + self.past_level(features)
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    fn fallback_feature(&self) -> Option<usize> {
+        self.cells.fallback_feature()
+    }
+}
+
+impl Tracker {
+    /// Tracks one frame with `carried`, the contour of the belief carried from the past over
+    /// the sample poses (positive, max at most 1), as one more node of the conflict graph. The
+    /// chosen group's features are reported in `group` (the carried belief never is); when the
+    /// carried belief is chosen alone, every usable feature is excluded and the estimate is the
+    /// carried belief's. Without usable features there is no estimate (the caller predicts).
+    ///
+    /// # Errors
+    /// [`TrackError::FeatureInputCount`]; [`TrackError::InvalidSetting`] for the splitting
+    /// policy (its alternatives are not weighed against the past) or a carried contour of the
+    /// wrong length.
+    pub fn track_with_past(
+        &self,
+        likelihoods: &[Option<Vec<f64>>],
+        carried: &[f64],
+    ) -> Result<PastFrame, TrackError> {
+        if let SelectionPolicy::Splitting { .. } = self.settings.selection {
+            return Err(TrackError::InvalidSetting {
+                field: "selection",
+                reason: "tracking with the past takes `largest_subset` or `lowest_conflict`, not \
+                         `splitting`"
+                    .into(),
+            });
+        }
+        let poses = self.model.poses().len();
+        if carried.len() != poses {
+            return Err(TrackError::InvalidSetting {
+                field: "carried",
+                reason: format!(
+                    "{} values for {poses} sample poses: carry one value per sample pose",
+                    carried.len()
+                ),
+            });
+        }
+        let (usable, issues) = self.measure(likelihoods)?;
+        let f = usable.len();
+        let mut flags = FrameFlags {
+            unusable: issues,
+            ..FrameFlags::default()
+        };
+        let usable_mask = (0..f)
+            .filter(|&i| usable[i].is_some())
+            .fold(0, |m: GroupMask, i| m | 1 << i);
+        if usable_mask == 0 {
+            flags.no_usable_feature = true;
+            return Ok(PastFrame {
+                frame: FrameEstimate::without_estimate(flags),
+                past_joined: false,
+            });
+        }
+        let mut cell_max = vec![0.0f64; self.cell_count()];
+        for (&u, &c) in self.cell_of.iter().zip(carried) {
+            cell_max[u] = cell_max[u].max(c);
+        }
+        let mut levels = PastLevels {
+            cells: self.cell_levels(&usable),
+            past: f,
+            cell_max,
+            memo: HashMap::new(),
+        };
+        let Selection {
+            chosen, fallback, ..
+        } = select_group(
+            &mut levels,
+            f + 1,
+            usable_mask | 1 << f,
+            self.settings.selection,
+            self.settings.conflict_threshold,
+        );
+        flags.fallback = fallback;
+        let Some((level, group)) = chosen else {
+            flags.no_usable_feature = true;
+            return Ok(PastFrame {
+                frame: FrameEstimate::without_estimate(flags),
+                past_joined: false,
+            });
+        };
+        let features = group & !(1 << f);
+        let past_joined = group != features;
+        let result = if past_joined {
+            self.estimate_with_past(features, &usable, carried)
+        } else {
+            self.estimate_group(features, &usable)
+        };
+        let full_level = self.level(usable_mask, &usable, &mut HashMap::new(), f64::INFINITY);
+        flags.excluded = members(usable_mask & !features).collect();
+        flags.combination_failed = result.is_none();
+        Ok(PastFrame {
+            frame: FrameEstimate {
+                estimate: result.as_ref().map(|r| r.0),
+                group: members(features).collect(),
+                conflict_level: Some(level),
+                full_conflict_level: Some(full_level),
+                uncertainty: result.as_ref().map(|r| r.2),
+                plausibility: result.map(|r| r.1).unwrap_or_default(),
+                alternatives: Vec::new(),
+                flags,
+            },
+            past_joined,
+        })
+    }
+
+    /// The estimate of `features` (possibly none) combined with the carried belief: its
+    /// relative plausibility is the normalised product of the contours. The pignistic
+    /// estimator reads it as well (the combination with the past is not built on the cells).
+    fn estimate_with_past(
+        &self,
+        features: GroupMask,
+        usable: &[Option<Usable>],
+        carried: &[f64],
+    ) -> Option<([f64; 2], Vec<f64>, super::Uncertainty)> {
+        let mut weights = if features == 0 {
+            carried.to_vec()
+        } else {
+            let mut pl = self.plausibility(features, usable)?;
+            let max = pl.iter().copied().fold(0.0f64, f64::max);
+            for (p, &c) in pl.iter_mut().zip(carried) {
+                *p = *p / max * c;
+            }
+            pl
+        };
+        let total: f64 = weights.iter().sum();
+        if !(total > 0.0 && total.is_finite()) {
+            return None;
+        }
+        weights.iter_mut().for_each(|w| *w /= total);
+        let (estimate, uncertainty) = self.estimate_with_weights(&weights)?;
+        Some((estimate, weights, uncertainty))
+    }
+
+    /// The estimate and uncertainty of weights over the sample poses, as the tracker's
+    /// estimator reads them (the pignistic estimator as the weighted mean).
+    pub fn estimate_with_weights(&self, weights: &[f64]) -> Option<([f64; 2], super::Uncertainty)> {
+        (weights.len() == self.model.poses().len()).then_some(())?;
+        self.estimate_from(weights)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::evidence::Constructor;
+    use crate::track::tracker::tests::tiny_tracker;
+
+    fn frame() -> Vec<Option<Vec<f64>>> {
+        vec![
+            Some(vec![0.3, 0.7]),
+            Some(vec![0.2, 0.5, 0.3]),
+            Some(vec![0.6, 0.4]),
+        ]
+    }
+
+    #[test]
+    fn a_vacuous_past_joins_and_changes_nothing() {
+        for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+            let tracker = tiny_tracker(constructor);
+            let alone = tracker.track(&frame()).unwrap();
+            let with = tracker.track_with_past(&frame(), &[1.0; 6]).unwrap();
+            assert!(with.past_joined, "{constructor:?}");
+            assert_eq!(with.frame.group, alone.group);
+            assert!(
+                (with.frame.conflict_level.unwrap() - alone.conflict_level.unwrap()).abs() < 1e-12
+            );
+            let (a, b) = (alone.estimate.unwrap(), with.frame.estimate.unwrap());
+            assert!(
+                (a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12,
+                "{a:?} {b:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_past_level_is_the_conflict_of_the_combination_with_the_past() {
+        // The carried belief here is Bayesian-free and consonant: contour 1 on poses 4, 5 and
+        // 0.25 elsewhere, i.e. mass 0.75 on {4, 5} and 0.25 on Θ. Adding it multiplies the
+        // agreeing mass by Σ_F m(F) max_F c, checked against Dempster's rule on the poses.
+        let tracker = tiny_tracker(Constructor::Bayesian);
+        let carried = [0.25, 0.25, 0.25, 0.25, 1.0, 1.0];
+        let with = tracker.track_with_past(&frame(), &carried).unwrap();
+        assert!(with.past_joined);
+        let alone = tracker.track(&frame()).unwrap();
+        // Relative plausibility of the frame's combination per pose, times the carried contour.
+        let pl = &alone.plausibility;
+        let agree: f64 =
+            pl.iter().zip(&carried).map(|(p, c)| p * c).sum::<f64>() / pl.iter().sum::<f64>();
+        // Every pose is its own cell here only if the features separate them: poses 4 and 5
+        // differ in feature 2, and so on; so max over a cell is the pose's own value.
+        let expected = alone.conflict_level.unwrap() - agree.ln();
+        assert!(
+            (with.frame.conflict_level.unwrap() - expected).abs() < 1e-12,
+            "{:?} vs {expected}",
+            with.frame.conflict_level
+        );
+        let total: f64 = pl.iter().zip(&carried).map(|(p, c)| p * c).sum();
+        for (k, w) in with.frame.plausibility.iter().enumerate() {
+            assert!((w - pl[k] * carried[k] / total).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn a_past_in_total_conflict_is_dropped_and_the_frame_is_followed() {
+        let mut tracker = tiny_tracker(Constructor::Bayesian);
+        tracker.settings.conflict_threshold = crate::evidence::ConflictLevel::Finite(5.0);
+        // Only pose 0 is plausible for the frame; the past says poses 4 and 5, nothing else.
+        let lik = vec![
+            Some(vec![1.0, 0.0]),
+            Some(vec![1.0, 0.0, 0.0]),
+            Some(vec![1.0, 0.0]),
+        ];
+        let with = tracker
+            .track_with_past(&lik, &[0.0, 0.0, 0.0, 0.0, 1.0, 1.0])
+            .unwrap();
+        assert!(!with.past_joined);
+        assert_eq!(with.frame.group, vec![0, 1, 2]);
+        assert_eq!(with.frame.estimate, tracker.track(&lik).unwrap().estimate);
+        // The wrong length and the splitting policy are refused with a message.
+        let short = tracker.track_with_past(&lik, &[1.0; 3]).unwrap_err();
+        assert!(
+            short.to_string().contains("one value per sample pose"),
+            "{short}"
+        );
+    }
+}

@@ -1,0 +1,215 @@
+//! The temporal methods through the seam (issue 17): the temporal evidential tracker and the
+//! particle filter on a synthetic path with a burst of dropped frames — predicted estimates,
+//! determinism, model files that round-trip bit for bit and corrupted ones that are named.
+
+use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::{
+    EstimatorSettings, Labelled, Method, ParticleFilter, PoseEstimate, PoseEstimator,
+    TemporalEvidential, TemporalSettings, TrainingSet,
+};
+use evitrack::model::{ModelSettings, StateCounts};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+const FEATURES: usize = 4;
+const NOISE: f64 = 0.01;
+/// Frames a filter may take to settle before its errors are checked.
+const SETTLE: usize = 6;
+/// Frames 12 to 16 of the path are dropped.
+const DROPPED: std::ops::Range<usize> = 12..17;
+
+struct Data {
+    names: Vec<String>,
+    poses: Vec<[f64; 2]>,
+    rows: Vec<Vec<Option<f64>>>,
+    valid_poses: Vec<[f64; 2]>,
+    valid_rows: Vec<Vec<Option<f64>>>,
+    valid_times: Vec<f64>,
+}
+
+/// A straight path at 6 mm/s, 10 frames/s, from (−7, 40) towards (7, 55).
+fn path(frames: usize) -> (Vec<f64>, Vec<[f64; 2]>) {
+    let direction = [14.0 / 20.5, 15.0 / 20.5];
+    (0..frames)
+        .map(|k| {
+            let t = k as f64 / 10.0;
+            (
+                t,
+                [-7.0 + 6.0 * t * direction[0], 40.0 + 6.0 * t * direction[1]],
+            )
+        })
+        .unzip()
+}
+
+impl Data {
+    fn new() -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let poses = workspace_mesh(20);
+        let rows = poses
+            .iter()
+            .map(|&q| feature_row(FEATURES, q, NOISE, &mut rng))
+            .collect();
+        let (valid_times, valid_poses) = path(20);
+        let valid_rows = valid_poses
+            .iter()
+            .map(|&q| feature_row(FEATURES, q, NOISE, &mut rng))
+            .collect();
+        Self {
+            names: (0..FEATURES).map(|i| format!("f{i}")).collect(),
+            poses,
+            rows,
+            valid_poses,
+            valid_rows,
+            valid_times,
+        }
+    }
+
+    fn training(&self) -> TrainingSet<'_> {
+        let mut data = TrainingSet::new(
+            &self.names,
+            Labelled {
+                poses: &self.poses,
+                rows: &self.rows,
+            },
+        );
+        data.validation = Some(Labelled {
+            poses: &self.valid_poses,
+            rows: &self.valid_rows,
+        });
+        data.validation_times = Some(&self.valid_times);
+        data
+    }
+}
+
+fn settings(reliability: Option<f64>) -> EstimatorSettings {
+    let mut settings = EstimatorSettings::default();
+    settings.evidential.model = ModelSettings {
+        states: StateCounts::All(6),
+        ..ModelSettings::default()
+    };
+    settings.temporal = TemporalSettings {
+        max_speed: 20.0,
+        reliability,
+    };
+    settings.particle_filter.particles = 1000;
+    settings
+}
+
+/// The test path's truth and its estimates, frames in `DROPPED` lost.
+fn run(estimator: &dyn PoseEstimator) -> (Vec<[f64; 2]>, Vec<PoseEstimate>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let (times, truth) = path(30);
+    let mut motion = estimator.start_motion();
+    let estimates = times
+        .iter()
+        .zip(&truth)
+        .enumerate()
+        .map(|(k, (&t, &q))| {
+            let row = if DROPPED.contains(&k) {
+                vec![None; FEATURES]
+            } else {
+                feature_row(FEATURES, q, NOISE, &mut rng)
+            };
+            motion.next(t, &row).unwrap()
+        })
+        .collect();
+    (truth, estimates)
+}
+
+fn bits(estimates: &[PoseEstimate]) -> Vec<[u64; 2]> {
+    estimates
+        .iter()
+        .map(|e| e.pose.map_or([0; 2], |p| [p[0].to_bits(), p[1].to_bits()]))
+        .collect()
+}
+
+/// Dropped frames get the prediction, flagged, no further from the last estimate than the
+/// motion model reaches; other frames (after the first `SETTLE`, which a filter needs to settle)
+/// are measured and track the path.
+fn check_predictions(method: &str, truth: &[[f64; 2]], estimates: &[PoseEstimate], max_error: f64) {
+    let last = estimates[DROPPED.start - 1].pose.unwrap();
+    for (k, e) in estimates.iter().enumerate() {
+        assert_eq!(
+            e.flags.predicted,
+            DROPPED.contains(&k),
+            "{method} frame {k}"
+        );
+        let pose = e
+            .pose
+            .unwrap_or_else(|| panic!("{method} frame {k}: no estimate"));
+        if DROPPED.contains(&k) {
+            let reach = 20.0 * 0.1 * (k + 1 - DROPPED.start) as f64;
+            let moved = (pose[0] - last[0]).hypot(pose[1] - last[1]);
+            assert!(
+                moved <= reach + 1e-9,
+                "{method} frame {k}: moved {moved} > {reach}"
+            );
+        } else if k >= SETTLE {
+            let error = (pose[0] - truth[k][0]).hypot(pose[1] - truth[k][1]);
+            assert!(error < max_error, "{method} frame {k}: error {error}");
+        }
+    }
+}
+
+#[test]
+fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
+    let data = Data::new();
+    let fitted = TemporalEvidential::fit(
+        &settings(None).evidential,
+        &settings(None).temporal,
+        &data.training(),
+    )
+    .unwrap();
+    let (alpha, learned) = fitted.reliability();
+    assert!(learned, "learned on the validation motion");
+    assert!(evitrack::estimator::RELIABILITY_CANDIDATES.contains(&alpha));
+
+    let estimator = Method::EvidentialTemporal
+        .fit(&settings(Some(0.9)), &data.training())
+        .unwrap();
+    let (truth, estimates) = run(estimator.as_ref());
+    check_predictions("evidential_temporal", &truth, &estimates, 3.0);
+    // The per-frame tracker has no estimate where the frames were lost.
+    let per_frame = Method::Evidential
+        .fit(&settings(Some(0.9)), &data.training())
+        .unwrap();
+    let (_, alone) = run(per_frame.as_ref());
+    assert!(DROPPED.clone().all(|k| alone[k].pose.is_none()));
+
+    assert_eq!(
+        bits(&run(estimator.as_ref()).1),
+        bits(&estimates),
+        "deterministic"
+    );
+    let text = estimator.to_json().unwrap();
+    let loaded = TemporalEvidential::from_json(&text).unwrap();
+    assert_eq!(bits(&run(&loaded).1), bits(&estimates), "round trip");
+    let broken = text.replace("\"reliability\": 0.9", "\"reliability\": 2.0");
+    assert_ne!(broken, text);
+    let error = TemporalEvidential::from_json(&broken)
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("reliability"), "{error}");
+}
+
+#[test]
+fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
+    let data = Data::new();
+    let estimator = Method::ParticleFilter
+        .fit(&settings(None), &data.training())
+        .unwrap();
+    let (truth, estimates) = run(estimator.as_ref());
+    check_predictions("particle_filter", &truth, &estimates, 1.5);
+    assert_eq!(
+        bits(&run(estimator.as_ref()).1),
+        bits(&estimates),
+        "deterministic"
+    );
+    let text = estimator.to_json().unwrap();
+    let loaded = ParticleFilter::from_json(&text).unwrap();
+    assert_eq!(bits(&run(&loaded).1), bits(&estimates), "round trip");
+    let broken = text.replace("\"particles\": 1000", "\"particles\": 0");
+    assert_ne!(broken, text);
+    let error = ParticleFilter::from_json(&broken).unwrap_err().to_string();
+    assert!(error.contains("particles"), "{error}");
+}
