@@ -344,7 +344,7 @@ fn too_many_features_are_refused_before_anything_runs() {
     );
     assert!(
         stderr.contains("20 features, but the continuous tracker takes at most 16")
-            && stderr.contains("without \"continuous\" in `estimators`"),
+            && stderr.contains("without \"continuous\" and \"particle_filter\" in `estimators`"),
         "{stderr}"
     );
 }

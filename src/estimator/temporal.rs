@@ -41,6 +41,7 @@ pub struct TemporalSettings {
     /// Reliability α ∈ [0, 1] of the carried belief; `None` learns it on the validation motion
     /// (the candidate with the lowest mean error, [`RELIABILITY_CANDIDATES`]), or takes
     /// [`DEFAULT_RELIABILITY`] without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub reliability: Option<f64>,
 }
 

@@ -11,22 +11,32 @@ use super::EvidenceError;
 const EMPTY_SLOT: u64 = u64::MAX;
 const MIX: u64 = 0x9E37_79B9_7F4A_7C15;
 
+/// Table slot of a pre-hash in a table of `mask + 1` slots, and its tag: one multiply, the slot
+/// from the product's top bits (the best mixed; a multiply's low bits depend on few input bits).
 #[inline(always)]
-fn fold_mul(a: u64, b: u64) -> u64 {
-    let m = (a as u128) * (b as u128);
-    (m as u64) ^ ((m >> 64) as u64)
+fn slot_and_tag(h: u64, mask: usize) -> (usize, u64) {
+    let hf = h.wrapping_mul(MIX);
+    (
+        (hf >> (mask as u64).leading_zeros()) as usize,
+        hf & 0xFFFF_FFFF_0000_0000,
+    )
 }
 
-fn splitmix(mut x: u64) -> u64 {
+const fn splitmix(mut x: u64) -> u64 {
     x = x.wrapping_add(MIX);
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     x ^ (x >> 31)
 }
 
+/// Odd key of word `k` for [`hash_words`]: 31 bits, so that a multiply by it takes an immediate.
+const fn key(k: u64) -> u64 {
+    (splitmix(k) >> 33) | 1
+}
+
 /// Pre-hash of a set: Σ wordₖ·keyₖ with odd per-word keys (one plain multiply per word; the
-/// full 128-bit mix is applied once per set in [`Engine::insert`]). Equal sets hash equally, and
-/// collisions only cost a word comparison.
+/// mix is applied once per set by [`slot_and_tag`]). Equal sets hash equally, and collisions only
+/// cost a word comparison.
 #[inline(always)]
 fn hash_words(x: &[u64], keys: &[u64]) -> u64 {
     x.iter()
@@ -125,7 +135,7 @@ impl Engine {
         let w = word_count(n);
         Engine {
             w,
-            keys: (0..w as u64).map(|k| splitmix(k) | 1).collect(),
+            keys: (0..w as u64).map(key).collect(),
             table,
             limits,
             max_sets: limits.max_sets(w),
@@ -188,12 +198,11 @@ impl Engine {
         let mask = cap - 1;
         for (i, words) in out.words.chunks_exact(w).enumerate() {
             let h = hash_words(words, &self.keys);
-            let hf = fold_mul(h, MIX);
-            let mut pos = (hf as usize) & mask;
+            let (mut pos, tag) = slot_and_tag(h, mask);
             while self.table[pos] != EMPTY_SLOT {
                 pos = (pos + 1) & mask;
             }
-            self.table[pos] = (hf & 0xFFFF_FFFF_0000_0000) | i as u64;
+            self.table[pos] = tag | i as u64;
         }
         mask
     }
@@ -201,26 +210,19 @@ impl Engine {
     /// Add mass `m` to the set `x` (hash `h`): merge with an equal set already in `out`, or append
     /// unless `out` holds `max_sets` sets already. Table entries hold the set's index in the low
     /// 32 bits and a hash tag in the high 32 bits, so most mismatches are rejected without
-    /// touching the arena. `first`, when given, is the entry at the first probed slot, read
-    /// earlier. Returns whether a slot was written.
+    /// touching the arena.
     #[inline(always)]
     fn insert(
         table: &mut [u64],
         mask: usize,
         out: &mut Arena,
         (x, h, m): (&[u64], u64, f64),
-        first: Option<u64>,
         max_sets: usize,
-    ) -> Result<bool, OverLimit> {
+    ) -> Result<(), OverLimit> {
         let w = x.len();
-        let hf = fold_mul(h, MIX);
-        let tag = hf & 0xFFFF_FFFF_0000_0000;
-        let mut pos = (hf as usize) & mask;
-        let mut e = match first {
-            Some(e) => e,
-            None => table[pos],
-        };
+        let (mut pos, tag) = slot_and_tag(h, mask);
         loop {
+            let e = table[pos];
             if e == EMPTY_SLOT {
                 if out.mass.len() >= max_sets {
                     return Err(OverLimit);
@@ -228,7 +230,7 @@ impl Engine {
                 table[pos] = tag | out.mass.len() as u64;
                 out.mass.push(m);
                 out.words.extend_from_slice(x);
-                return Ok(true);
+                return Ok(());
             }
             if e & 0xFFFF_FFFF_0000_0000 == tag {
                 let i = (e & 0xFFFF_FFFF) as usize;
@@ -236,11 +238,10 @@ impl Engine {
                 // Word loop rather than slice equality, which would call memcmp.
                 if stored.iter().zip(x).all(|(a, b)| a == b) {
                     out.mass[i] += m;
-                    return Ok(false);
+                    return Ok(());
                 }
             }
             pos = (pos + 1) & mask;
-            e = table[pos];
         }
     }
 
@@ -250,47 +251,28 @@ impl Engine {
         b: &Arena,
         out: &mut Arena,
     ) -> Result<(f64, f64), OverLimit> {
-        const ROW: usize = 4;
         let mut mask = self.prepare(cur.len() * b.len(), out);
-        let mut keys = [0u64; W];
-        keys.copy_from_slice(&self.keys[..W]);
+        let keys: [u64; W] = std::array::from_fn(|k| key(k as u64));
         let mut empty = 0.0;
         let mut kept = 0.0;
-        let (cw, _) = cur.words.as_chunks::<W>();
-        let (bw, _) = b.words.as_chunks::<W>();
-        for (a, &ma) in cw.iter().zip(&cur.mass) {
-            for (bs, mbs) in bw.chunks(ROW).zip(b.mass.chunks(ROW)) {
-                // Up to ROW pairs at a time: intersections, hashes and first table entries first,
-                // so that their cache misses overlap, then the inserts in pair order.
-                let mut xs = [[0u64; W]; ROW];
-                let mut hs = [0u64; ROW];
-                let mut es = [EMPTY_SLOT; ROW];
-                let mut anys = [0u64; ROW];
-                for (j, bk) in bs.iter().enumerate() {
-                    let mut any = 0u64;
-                    for k in 0..W {
-                        xs[j][k] = a[k] & bk[k];
-                        any |= xs[j][k];
-                    }
-                    anys[j] = any;
-                    hs[j] = hash_words(&xs[j], &keys);
-                    es[j] = self.table[(fold_mul(hs[j], MIX) as usize) & mask];
+        for (a, &ma) in cur.words.chunks_exact(W).zip(&cur.mass) {
+            for (bw, &mb) in b.words.chunks_exact(W).zip(&b.mass) {
+                let mut x = [0u64; W];
+                let mut any = 0u64;
+                for k in 0..W {
+                    x[k] = a[k] & bw[k];
+                    any |= x[k];
                 }
-                let mut dirty = false;
-                for (j, &mb) in mbs.iter().enumerate() {
-                    if anys[j] == 0 {
-                        empty += ma * mb;
-                        continue;
-                    }
-                    if 2 * out.len() >= mask {
-                        mask = self.grow(out);
-                        dirty = true;
-                    }
-                    kept += ma * mb;
-                    let first = (!dirty).then_some(es[j]);
-                    let item = (&xs[j][..], hs[j], ma * mb);
-                    dirty |= Self::insert(&mut self.table, mask, out, item, first, self.max_sets)?;
+                if any == 0 {
+                    empty += ma * mb;
+                    continue;
                 }
+                let h = hash_words(&x, &keys);
+                if 2 * out.len() >= mask {
+                    mask = self.grow(out);
+                }
+                kept += ma * mb;
+                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
         Ok((empty, kept))
@@ -323,14 +305,7 @@ impl Engine {
                     mask = self.grow(out);
                 }
                 kept += ma * mb;
-                Self::insert(
-                    &mut self.table,
-                    mask,
-                    out,
-                    (&x, h, ma * mb),
-                    None,
-                    self.max_sets,
-                )?;
+                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
         Ok((empty, kept))
@@ -376,7 +351,7 @@ impl Engine {
                 mask = self.grow(out);
             }
             let m = (l - top).exp();
-            Self::insert(&mut self.table, mask, out, (&x, h, m), None, self.max_sets)?;
+            Self::insert(&mut self.table, mask, out, (&x, h, m), self.max_sets)?;
         }
         Ok(Some(top))
     }

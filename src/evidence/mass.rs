@@ -285,15 +285,25 @@ impl MassFunction {
     /// The contour function: plausibility of every singleton, in O(n + Σ|A|).
     pub fn contour(&self) -> Vec<f64> {
         let mut pl = vec![0.0; self.n];
-        // Word by word: focal sets of long combinations are tiny, so most words are zero.
+        // Focal sets of long combinations are tiny, so most words are zero: find the non-zero
+        // words, 64 at a time, without a branch per word (which mispredicts often).
         for (s, m) in self.focal_words() {
-            for (chunk, &word) in pl.chunks_mut(64).zip(s) {
-                let mut bits = word;
-                while bits != 0 {
-                    if let Some(p) = chunk.get_mut(bits.trailing_zeros() as usize) {
-                        *p += m;
+            for (g, ws) in s.chunks(64).enumerate() {
+                let mut nz = 0u64;
+                for (k, &word) in ws.iter().enumerate() {
+                    nz |= u64::from(word != 0) << k;
+                }
+                while nz != 0 {
+                    let k = nz.trailing_zeros() as usize;
+                    nz &= nz - 1;
+                    let base = (g * 64 + k) * 64;
+                    let mut bits = ws[k];
+                    while bits != 0 {
+                        if let Some(p) = pl.get_mut(base + bits.trailing_zeros() as usize) {
+                            *p += m;
+                        }
+                        bits &= bits - 1;
                     }
-                    bits &= bits - 1;
                 }
             }
         }
