@@ -626,3 +626,70 @@ fn the_scale_scenario_runs_end_to_end_within_its_expectations() {
     assert_eq!(results["methods"][0]["method"], "evidential");
     assert_eq!(results["methods"][0]["mean_group_size"], 32.0);
 }
+
+/// `scenarios/time.toml` (issue 17) meets its expectations, and the README's reading of it
+/// holds: the temporal evidential tracker gives every lost frame a flagged prediction where the
+/// per-frame tracker gives none, and differs from it by under 2 % on clean frames.
+#[test]
+fn the_time_scenario_runs_within_its_expectations() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/time.toml");
+    let out = evitrack(
+        &[
+            "sweep",
+            scenario,
+            "--out",
+            dir.path().to_str().unwrap(),
+            "--check",
+            "--jobs",
+            "2",
+        ],
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let method = |variant: &str, name: &str| -> serde_json::Value {
+        let path = dir
+            .path()
+            .join(format!("time-{variant}"))
+            .join("results.json");
+        let results: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+        results["methods"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|m| m["method"] == name)
+            .unwrap_or_else(|| panic!("{variant}: no {name}"))
+            .clone()
+    };
+    let mean = |variant: &str, name: &str| method(variant, name)["error"]["mean"].as_f64().unwrap();
+    let (alone, temporal) = (
+        mean("clean", "evidential"),
+        mean("clean", "evidential_temporal"),
+    );
+    assert!((temporal / alone - 1.0).abs() < 0.02, "{alone} {temporal}");
+    let lost = method("dropped", "evidential")["faults"]["corrupted_frames"].clone();
+    assert!(lost.as_u64().unwrap() > 0);
+    assert_eq!(
+        method("dropped", "evidential")["frames_without_estimate"],
+        lost
+    );
+    for name in ["evidential_temporal", "particle_filter"] {
+        assert_eq!(
+            method("dropped", name)["frames_without_estimate"],
+            0,
+            "{name}"
+        );
+    }
+    let frames =
+        std::fs::read_to_string(dir.path().join("time-dropped").join("frames.csv")).unwrap();
+    let predicted = frames
+        .lines()
+        .filter(|l| l.starts_with("evidential_temporal,") && l.contains("predicted"))
+        .count();
+    assert_eq!(predicted as u64, lost.as_u64().unwrap());
+}
