@@ -90,6 +90,7 @@ fn settings(reliability: Option<f64>) -> EstimatorSettings {
     settings.temporal = TemporalSettings {
         max_speed: 20.0,
         reliability,
+        past_weight: None,
     };
     settings.particle_filter.particles = 1000;
     settings

@@ -146,7 +146,7 @@ impl ParticleFilter {
             .and_then(|()| {
                 TemporalSettings {
                     max_speed: file.max_speed,
-                    reliability: None,
+                    ..TemporalSettings::default()
                 }
                 .check()
             })

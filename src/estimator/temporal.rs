@@ -8,8 +8,9 @@
 //! - Discounting by the reliability α (fixed, or learned on the validation motion): the carried
 //!   contour is c = 1 − α + α·π′, so the past can never be in total conflict with a frame.
 //! - The frame's features and the carried belief form one conflict graph
-//!   ([`crate::track::Tracker::track_with_past`]): a frame that contradicts the past shows as
-//!   conflict, and when the past is left out (`past_rejected`) it is dropped, not followed.
+//!   ([`crate::track::Tracker::track_with_past`]), the past counting as `past_weight` features
+//!   in the largest-subset choice: a frame that contradicts the past shows as conflict, and
+//!   when the past is left out (`past_rejected`) it is dropped, not followed.
 //! - What is carried on is the contour of the chosen combination (the consonant function with
 //!   that contour), scaled to maximum 1.
 //! - A frame without a usable feature gets the prediction: the estimate of π′ alone
@@ -36,26 +37,38 @@ use crate::track::SelectionPolicy;
 #[serde(deny_unknown_fields, default)]
 pub struct TemporalSettings {
     /// The fastest the end effector moves (mm/s): the reach of one frame interval is
-    /// `max_speed` × Δt. The simulated rig follows paths at 43 mm/s within micrometres.
+    /// `max_speed` × Δt. Default 80: twice the fastest test motion (a 40 mm/s circle; the rig
+    /// follows 43 mm/s within micrometres), because the carried belief is sharper than the
+    /// estimate's error and a tight reach makes the tracker lag (README, "Tracking over time").
     pub max_speed: f64,
     /// Reliability α ∈ [0, 1] of the carried belief; `None` learns it on the validation motion
-    /// (the candidate with the lowest mean error, [`RELIABILITY_CANDIDATES`]), or takes
-    /// [`DEFAULT_RELIABILITY`] without one.
+    /// (the candidate with the lowest mean error, the largest among ties,
+    /// [`RELIABILITY_CANDIDATES`]), or takes [`DEFAULT_RELIABILITY`] without one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reliability: Option<f64>,
+    /// How many features the carried belief counts as in the largest-subset choice
+    /// ([`crate::track::Tracker::track_with_past`]); `None`: half the features, so that a frame
+    /// whose best coherent group holds fewer than half of its features is outweighed by the
+    /// past. 1 counts it exactly as a feature.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub past_weight: Option<f64>,
 }
 
 /// The reliabilities tried when learning α.
-pub const RELIABILITY_CANDIDATES: [f64; 6] = [0.5, 0.8, 0.9, 0.95, 0.98, 0.99];
+pub const RELIABILITY_CANDIDATES: [f64; 7] = [0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.0];
 
 /// α when it is neither given nor learnable (no validation motion with timestamps).
 pub const DEFAULT_RELIABILITY: f64 = 0.9;
 
+/// Validation errors within this relative margin of the lowest are a tie.
+const RELIABILITY_TIE: f64 = 1e-9;
+
 impl Default for TemporalSettings {
     fn default() -> Self {
         Self {
-            max_speed: 50.0,
+            max_speed: 80.0,
             reliability: None,
+            past_weight: None,
         }
     }
 }
@@ -76,6 +89,14 @@ impl TemporalSettings {
         if let Some(alpha) = self.reliability {
             within(alpha, 0.0..=1.0)
                 .map_err(|e| EstimatorError::Training(format!("`temporal.reliability`: {e}")))?;
+        }
+        if let Some(weight) = self.past_weight {
+            if !(weight.is_finite() && weight >= 0.0) {
+                return Err(EstimatorError::Training(format!(
+                    "`temporal.past_weight` is {weight}: give how many features the past counts \
+                     as (≥ 0)"
+                )));
+            }
         }
         Ok(())
     }
@@ -135,16 +156,26 @@ impl TemporalEvidential {
         ) {
             (Some(alpha), _, _) => fitted.file.reliability = alpha,
             (None, Some(validation), Some(times)) => {
-                let mut best = (f64::INFINITY, DEFAULT_RELIABILITY);
+                let mut errors = Vec::with_capacity(RELIABILITY_CANDIDATES.len());
                 for alpha in RELIABILITY_CANDIDATES {
                     fitted.file.reliability = alpha;
-                    let error =
-                        fitted.mean_error(times, validation.rows, validation.poses, data)?;
-                    if error < best.0 {
-                        best = (error, alpha);
-                    }
+                    errors.push(fitted.mean_error(
+                        times,
+                        validation.rows,
+                        validation.poses,
+                        data,
+                    )?);
                 }
-                fitted.file.reliability = best.1;
+                let best = errors.iter().copied().fold(f64::INFINITY, f64::min);
+                // Ties (a validation motion the past cannot improve on) go to the most reliable:
+                // the reach is a hard bound when the speed limit holds.
+                fitted.file.reliability = RELIABILITY_CANDIDATES
+                    .iter()
+                    .zip(&errors)
+                    .filter(|(_, &e)| e <= best * (1.0 + RELIABILITY_TIE))
+                    .map(|(&alpha, _)| alpha)
+                    .last()
+                    .unwrap_or(DEFAULT_RELIABILITY);
                 fitted.file.reliability_learned = true;
             }
             _ => {}
@@ -299,7 +330,11 @@ impl MotionTracker for EvidentialMotion<'_> {
         let alpha = self.estimator.file.reliability;
         let carried: Vec<f64> = moved.iter().map(|&m| 1.0 - alpha + alpha * m).collect();
         let likelihoods = inner.model().frames().likelihoods(features)?;
-        let outcome = tracker.track_with_past(&likelihoods, &carried)?;
+        let settings = &self.estimator.file.settings;
+        let weight = settings
+            .past_weight
+            .unwrap_or(0.5 * likelihoods.len() as f64);
+        let outcome = tracker.track_with_past(&likelihoods, &carried, weight)?;
         let mut estimate = pose_estimate(outcome.frame.clone());
         if outcome.frame.estimate.is_some() {
             estimate.flags.past_rejected = !outcome.past_joined;

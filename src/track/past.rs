@@ -11,9 +11,9 @@
 
 use std::collections::HashMap;
 
-use super::select::{members, select_group, CellLevels, GroupLevels, GroupMask, Selection};
+use super::select::{members, select_group, CellLevels, GroupLevels, GroupMask};
 use super::settings::SelectionPolicy;
-use super::tracker::{FrameEstimate, FrameFlags, Tracker, Usable};
+use super::tracker::{FrameEstimate, Tracker, Usable};
 use super::TrackError;
 use crate::evidence::dempster_all;
 
@@ -98,12 +98,49 @@ impl GroupLevels for PastLevels<'_> {
     }
 }
 
+/// The groups that contain the carried belief, seen as groups of the features beside it: the
+/// selection on them finds the largest set of features that can be combined with the past.
+struct WithPast<'a, 'b> {
+    levels: &'b mut PastLevels<'a>,
+}
+
+impl WithPast<'_, '_> {
+    fn past_bit(&self) -> GroupMask {
+        1 << self.levels.past
+    }
+}
+
+impl GroupLevels for WithPast<'_, '_> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        let group = 1 << i | 1 << j | self.past_bit();
+        self.levels.group_level(group)
+    }
+
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        let group = group | self.past_bit();
+        self.levels.group_level(group)
+    }
+
+    /// Never asked: every node was admitted beside the past, so each alone is eligible.
+    fn fallback_feature(&self) -> Option<usize> {
+        None
+    }
+}
+
 impl Tracker {
     /// Tracks one frame with `carried`, the contour of the belief carried from the past over
-    /// the sample poses (positive, max at most 1), as one more node of the conflict graph. The
-    /// chosen group's features are reported in `group` (the carried belief never is); when the
-    /// carried belief is chosen alone, every usable feature is excluded and the estimate is the
-    /// carried belief's. Without usable features there is no estimate (the caller predicts).
+    /// the sample poses (positive, max at most 1), as one more node of the conflict graph that
+    /// counts as `past_weight` features.
+    ///
+    /// Two candidates compete: the frame's own choice (the per-frame selection, worth its number
+    /// of features) and the past with the largest group of features it can be combined with
+    /// within the threshold (worth that number plus `past_weight`); the past joins when it is
+    /// worth more. With weight 1 the carried belief counts exactly as a feature; with half the
+    /// features, a frame whose best coherent group holds fewer than half of them is outweighed
+    /// by the past, and a frame whose features agree beyond that drops a past that contradicts
+    /// them. The chosen group's features are reported in `group` (the carried belief never is);
+    /// when the past wins alone, every usable feature is excluded and the estimate is the carried
+    /// belief's. Without usable features there is no estimate (the caller predicts).
     ///
     /// # Errors
     /// [`TrackError::FeatureInputCount`]; [`TrackError::InvalidSetting`] for the splitting
@@ -113,6 +150,7 @@ impl Tracker {
         &self,
         likelihoods: &[Option<Vec<f64>>],
         carried: &[f64],
+        past_weight: f64,
     ) -> Result<PastFrame, TrackError> {
         if let SelectionPolicy::Splitting { .. } = self.settings.selection {
             return Err(TrackError::InvalidSetting {
@@ -132,22 +170,19 @@ impl Tracker {
                 ),
             });
         }
-        let (usable, issues) = self.measure(likelihoods)?;
-        let f = usable.len();
-        let mut flags = FrameFlags {
-            unusable: issues,
-            ..FrameFlags::default()
+        let alone = self.track(likelihoods)?;
+        let frame_alone = PastFrame {
+            frame: alone.clone(),
+            past_joined: false,
         };
+        if alone.flags.no_usable_feature {
+            return Ok(frame_alone);
+        }
+        let (usable, _) = self.measure(likelihoods)?;
+        let f = usable.len();
         let usable_mask = (0..f)
             .filter(|&i| usable[i].is_some())
             .fold(0, |m: GroupMask, i| m | 1 << i);
-        if usable_mask == 0 {
-            flags.no_usable_feature = true;
-            return Ok(PastFrame {
-                frame: FrameEstimate::without_estimate(flags),
-                past_joined: false,
-            });
-        }
         let mut cell_max = vec![0.0f64; self.cell_count()];
         for (&u, &c) in self.cell_of.iter().zip(carried) {
             cell_max[u] = cell_max[u].max(c);
@@ -158,45 +193,68 @@ impl Tracker {
             cell_max,
             memo: HashMap::new(),
         };
-        let Selection {
-            chosen, fallback, ..
-        } = select_group(
-            &mut levels,
-            f + 1,
-            usable_mask | 1 << f,
-            self.settings.selection,
-            self.settings.conflict_threshold,
-        );
-        flags.fallback = fallback;
-        let Some((level, group)) = chosen else {
-            flags.no_usable_feature = true;
-            return Ok(PastFrame {
-                frame: FrameEstimate::without_estimate(flags),
-                past_joined: false,
-            });
+        let threshold = self.settings.conflict_threshold;
+        let beside = members(usable_mask)
+            .filter(|&i| threshold.admits(levels.past_level(1 << i)))
+            .fold(0, |m: GroupMask, i| m | 1 << i);
+        let (features, level) = match beside.count_ones() {
+            0 => (0, 0.0),
+            1 => (beside, levels.past_level(beside)),
+            _ => {
+                let selection = select_group(
+                    &mut WithPast {
+                        levels: &mut levels,
+                    },
+                    f,
+                    beside,
+                    self.settings.selection,
+                    threshold,
+                );
+                match selection.chosen {
+                    Some((level, group)) if !selection.fallback => (group, level),
+                    // No pair combines beside the past: the feature closest to it.
+                    _ => {
+                        let best = members(beside)
+                            .min_by(|&a, &b| {
+                                levels
+                                    .past_level(1 << a)
+                                    .total_cmp(&levels.past_level(1 << b))
+                                    .then(a.cmp(&b))
+                            })
+                            .map_or(0, |i| 1 << i);
+                        (best, levels.past_level(best))
+                    }
+                }
+            }
         };
-        let features = group & !(1 << f);
-        let past_joined = group != features;
-        let result = if past_joined {
-            self.estimate_with_past(features, &usable, carried)
+        let frame_worth = if alone.flags.fallback {
+            1.0
         } else {
-            self.estimate_group(features, &usable)
+            alone.group.len() as f64
         };
-        let full_level = self.level(usable_mask, &usable, &mut HashMap::new(), f64::INFINITY);
+        if features.count_ones() as f64 + past_weight <= frame_worth {
+            return Ok(frame_alone);
+        }
+        let Some((estimate, plausibility, uncertainty)) =
+            self.estimate_with_past(features, &usable, carried)
+        else {
+            return Ok(frame_alone);
+        };
+        let mut flags = alone.flags;
+        flags.fallback = false;
         flags.excluded = members(usable_mask & !features).collect();
-        flags.combination_failed = result.is_none();
         Ok(PastFrame {
             frame: FrameEstimate {
-                estimate: result.as_ref().map(|r| r.0),
+                estimate: Some(estimate),
                 group: members(features).collect(),
                 conflict_level: Some(level),
-                full_conflict_level: Some(full_level),
-                uncertainty: result.as_ref().map(|r| r.2),
-                plausibility: result.map(|r| r.1).unwrap_or_default(),
+                full_conflict_level: alone.full_conflict_level,
+                uncertainty: Some(uncertainty),
+                plausibility,
                 alternatives: Vec::new(),
                 flags,
             },
-            past_joined,
+            past_joined: true,
         })
     }
 
@@ -254,7 +312,7 @@ mod tests {
         for constructor in [Constructor::Bayesian, Constructor::Consonant] {
             let tracker = tiny_tracker(constructor);
             let alone = tracker.track(&frame()).unwrap();
-            let with = tracker.track_with_past(&frame(), &[1.0; 6]).unwrap();
+            let with = tracker.track_with_past(&frame(), &[1.0; 6], 1.0).unwrap();
             assert!(with.past_joined, "{constructor:?}");
             assert_eq!(with.frame.group, alone.group);
             assert!(
@@ -275,7 +333,7 @@ mod tests {
         // agreeing mass by Σ_F m(F) max_F c, checked against Dempster's rule on the poses.
         let tracker = tiny_tracker(Constructor::Bayesian);
         let carried = [0.25, 0.25, 0.25, 0.25, 1.0, 1.0];
-        let with = tracker.track_with_past(&frame(), &carried).unwrap();
+        let with = tracker.track_with_past(&frame(), &carried, 1.0).unwrap();
         assert!(with.past_joined);
         let alone = tracker.track(&frame()).unwrap();
         // Relative plausibility of the frame's combination per pose, times the carried contour.
@@ -307,13 +365,13 @@ mod tests {
             Some(vec![1.0, 0.0]),
         ];
         let with = tracker
-            .track_with_past(&lik, &[0.0, 0.0, 0.0, 0.0, 1.0, 1.0])
+            .track_with_past(&lik, &[0.0, 0.0, 0.0, 0.0, 1.0, 1.0], 1.0)
             .unwrap();
         assert!(!with.past_joined);
         assert_eq!(with.frame.group, vec![0, 1, 2]);
         assert_eq!(with.frame.estimate, tracker.track(&lik).unwrap().estimate);
         // The wrong length and the splitting policy are refused with a message.
-        let short = tracker.track_with_past(&lik, &[1.0; 3]).unwrap_err();
+        let short = tracker.track_with_past(&lik, &[1.0; 3], 1.0).unwrap_err();
         assert!(
             short.to_string().contains("one value per sample pose"),
             "{short}"
