@@ -172,10 +172,9 @@ impl TemporalEvidential {
                 fitted.file.reliability = RELIABILITY_CANDIDATES
                     .iter()
                     .zip(&errors)
-                    .filter(|(_, &e)| e <= best * (1.0 + RELIABILITY_TIE))
-                    .map(|(&alpha, _)| alpha)
-                    .last()
-                    .unwrap_or(DEFAULT_RELIABILITY);
+                    .rev()
+                    .find(|(_, &e)| e <= best * (1.0 + RELIABILITY_TIE))
+                    .map_or(DEFAULT_RELIABILITY, |(&alpha, _)| alpha);
                 fitted.file.reliability_learned = true;
             }
             _ => {}
