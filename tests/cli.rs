@@ -721,7 +721,11 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     .unwrap();
     let predicted = frames
         .lines()
-        .filter(|l| l.starts_with("evidential_temporal,") && l.contains("predicted"))
+        .filter(|l| {
+            l.starts_with("evidential_temporal,")
+                && l.contains("predicted")
+                && l.contains("missing:")
+        })
         .count();
     assert_eq!(predicted as u64, lost.as_u64().unwrap());
 }

@@ -49,6 +49,7 @@ fn rows_without_label(path: &Path, method: &str) -> Vec<Vec<String>> {
 const SCENARIO: &str = r#"
 name = "door"
 learn_threshold = true
+estimators = ["evidential", "evidential_temporal", "continuous", "particle_filter", "knn", "gp", "centre"]
 [sample]
 motion = { kind = "mesh", spacing = 2.0 }
 [validation]
@@ -97,7 +98,16 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         args.extend(["--variant", v]);
     }
     ok(evitrack(&args));
-    for method in ["evidential", "continuous", "knn", "gp", "centre"] {
+    let methods = [
+        "evidential",
+        "evidential_temporal",
+        "continuous",
+        "particle_filter",
+        "knn",
+        "gp",
+        "centre",
+    ];
+    for method in methods {
         let model = match method {
             "evidential" => run_dir.join("model.json"),
             other => run_dir.join(format!("model-{other}.json")),

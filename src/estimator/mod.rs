@@ -238,8 +238,8 @@ pub struct EstimateFlags {
     pub fallback: bool,
     /// Combining the chosen features gave no usable result.
     pub combination_failed: bool,
-    /// The frame had no usable measurement, so the estimate is the motion model's prediction
-    /// from the past frames (temporal methods).
+    /// The estimate is the motion model's prediction from the past frames (temporal methods):
+    /// the frame had no usable measurement, or the past outweighed every feature.
     pub predicted: bool,
     /// The belief carried from the past frames conflicted with this frame's and was left out:
     /// the past was dropped and tracking restarts from this frame (temporal evidential tracker).

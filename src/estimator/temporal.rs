@@ -15,6 +15,7 @@
 //!   that contour), scaled to maximum 1.
 //! - A frame without a usable feature gets the prediction: the estimate of π′ alone
 //!   (`predicted`), and π′ is carried on, so the reach keeps growing until a frame is usable.
+//!   A frame whose features are all outweighed by the past is flagged `predicted` too.
 
 use std::path::Path;
 
@@ -337,6 +338,8 @@ impl MotionTracker for EvidentialMotion<'_> {
         let mut estimate = pose_estimate(outcome.frame.clone());
         if outcome.frame.estimate.is_some() {
             estimate.flags.past_rejected = !outcome.past_joined;
+            // The past outweighed every feature: the estimate is the prediction.
+            estimate.flags.predicted = outcome.past_joined && outcome.frame.group.is_empty();
             self.past = scaled_to_max(&outcome.frame.plausibility).map(|c| (time, c));
             // Nothing to carry (not expected with an estimate): keep the moved past.
             if self.past.is_none() {
