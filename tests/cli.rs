@@ -690,6 +690,21 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
         struck_mean("occlusion", "particle_filter")
             < struck_mean("occlusion", "evidential_temporal")
     );
+    // The continuous tracker over time: 10.168 → 4.720 mm on struck frames (2.15×), 2.37× or
+    // more on every seed with 50 mm/s; the same estimates as per frame on clean frames and on
+    // the fast circle.
+    let ratio =
+        struck_mean("occlusion", "continuous") / struck_mean("occlusion", "continuous_temporal");
+    assert!(ratio >= 2.1, "continuous, occlusion: {ratio}");
+    for seed in 1..=5 {
+        let r = struck("occlusion-v50", seed, "continuous")
+            / struck("occlusion-v50", seed, "continuous_temporal");
+        assert!(r >= 2.3, "continuous, occlusion-v50 seed {seed}: {r}");
+    }
+    for variant in ["clean", "fast", "fast-v50"] {
+        let r = mean(variant, "continuous_temporal") / mean(variant, "continuous");
+        assert!((r - 1.0).abs() < 1e-3, "continuous, {variant}: {r}");
+    }
     // Clean frames: 0.515 → 0.511 mm, no measurable difference; the fast circle: 0.949× with
     // the 80 mm/s reach, 1.15× (a lag) with 50 mm/s.
     let clean = mean("clean", "evidential_temporal") / mean("clean", "evidential");
@@ -705,7 +720,11 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
         method("dropped", 1, "evidential")["frames_without_estimate"],
         lost
     );
-    for name in ["evidential_temporal", "particle_filter"] {
+    for name in [
+        "evidential_temporal",
+        "continuous_temporal",
+        "particle_filter",
+    ] {
         assert_eq!(
             method("dropped", 1, name)["frames_without_estimate"],
             0,

@@ -49,7 +49,7 @@ fn rows_without_label(path: &Path, method: &str) -> Vec<Vec<String>> {
 const SCENARIO: &str = r#"
 name = "door"
 learn_threshold = true
-estimators = ["evidential", "evidential_temporal", "continuous", "particle_filter", "knn", "gp", "centre"]
+estimators = ["evidential", "evidential_temporal", "continuous", "continuous_temporal", "particle_filter", "knn", "gp", "centre"]
 [sample]
 motion = { kind = "mesh", spacing = 2.0 }
 [validation]
@@ -102,6 +102,7 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         "evidential",
         "evidential_temporal",
         "continuous",
+        "continuous_temporal",
         "particle_filter",
         "knn",
         "gp",

@@ -292,7 +292,7 @@ fn model_files_of_every_method_refuse_poses_beyond_their_workspace() {
         let text = estimator.to_json().unwrap();
         let outer: serde_json::Value = serde_json::from_str(&text).unwrap();
         // The temporal methods hold the model of the method they build on as text.
-        let nested = ["evidential_model", "feature_maps"]
+        let nested = ["evidential_model", "feature_maps", "continuous_model"]
             .into_iter()
             .find(|k| outer.get(k).is_some());
         let json: serde_json::Value = match nested {

@@ -1,11 +1,11 @@
-//! The temporal methods through the seam (issue 17): the temporal evidential tracker and the
-//! particle filter on a synthetic path with a burst of dropped frames — predicted estimates,
+//! The temporal methods through the seam (issue 17): the temporal evidential tracker, the
+//! continuous tracker over time and the particle filter on a synthetic path with a burst of dropped frames — predicted estimates,
 //! determinism, model files that round-trip bit for bit and corrupted ones that are named.
 
 use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
 use evitrack::estimator::{
-    EstimatorSettings, Labelled, Method, ParticleFilter, PoseEstimate, PoseEstimator,
-    TemporalEvidential, TemporalSettings, TrainingSet,
+    ContinuousTemporal, EstimatorSettings, Labelled, Method, ParticleFilter, PoseEstimate,
+    PoseEstimator, TemporalEvidential, TemporalSettings, TrainingSet,
 };
 use evitrack::model::{ModelSettings, StateCounts};
 use rand::SeedableRng;
@@ -213,4 +213,53 @@ fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
     assert_ne!(broken, text);
     let error = ParticleFilter::from_json(&broken).unwrap_err().to_string();
     assert!(error.contains("particles"), "{error}");
+}
+
+#[test]
+fn the_continuous_tracker_over_time_predicts_lost_frames_and_round_trips() {
+    let data = Data::new();
+    let fitted = ContinuousTemporal::fit(
+        &settings(None).continuous,
+        &settings(None).temporal,
+        &data.training(),
+    )
+    .unwrap();
+    assert!(fitted.reliability().1, "learned on the validation motion");
+    let estimator = Method::ContinuousTemporal
+        .fit(&settings(Some(0.9)), &data.training())
+        .unwrap();
+    let (truth, estimates) = run(estimator.as_ref());
+    // Frame 10 is ambiguous on these synthetic maps (3.3 mm per frame too).
+    check_predictions("continuous_temporal", &truth, &estimates, 4.0);
+    // On the measured frames it is no worse than the per-frame tracker, which has no estimate
+    // where the frames were lost.
+    let per_frame = Method::Continuous
+        .fit(&settings(Some(0.9)), &data.training())
+        .unwrap();
+    let (_, alone) = run(per_frame.as_ref());
+    assert!(DROPPED.clone().all(|k| alone[k].pose.is_none()));
+    let measured_error = |e: &[PoseEstimate]| -> f64 {
+        (0..truth.len())
+            .filter(|k| !DROPPED.contains(k))
+            .map(|k| {
+                let p = e[k].pose.unwrap();
+                (p[0] - truth[k][0]).hypot(p[1] - truth[k][1])
+            })
+            .sum()
+    };
+    assert!(measured_error(&estimates) <= measured_error(&alone) * 1.01);
+    assert_eq!(
+        bits(&run(estimator.as_ref()).1),
+        bits(&estimates),
+        "deterministic"
+    );
+    let text = estimator.to_json().unwrap();
+    let loaded = ContinuousTemporal::from_json(&text).unwrap();
+    assert_eq!(bits(&run(&loaded).1), bits(&estimates), "round trip");
+    let broken = text.replace("\"reliability\": 0.9", "\"reliability\": -1.0");
+    assert_ne!(broken, text);
+    let error = ContinuousTemporal::from_json(&broken)
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("reliability"), "{error}");
 }

@@ -18,7 +18,8 @@ mod temporal;
 
 pub use centre::{Centre, CentreSettings};
 pub use continuous::{
-    Continuous, ContinuousSettings, SurrogateHyperparameters, MAX_CONTINUOUS_FEATURES,
+    Continuous, ContinuousSettings, ContinuousTemporal, SurrogateHyperparameters,
+    MAX_CONTINUOUS_FEATURES,
 };
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
@@ -108,14 +109,18 @@ pub enum Method {
     /// A particle filter with the continuous tracker's feature maps as likelihood and the same
     /// motion model ([`ParticleFilter`]).
     ParticleFilter,
+    /// The continuous evidential tracker with the carried belief of the last frame
+    /// ([`ContinuousTemporal`]).
+    ContinuousTemporal,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 8] = [
         Method::Evidential,
         Method::EvidentialTemporal,
         Method::Continuous,
+        Method::ContinuousTemporal,
         Method::Knn,
         Method::Gp,
         Method::ParticleFilter,
@@ -141,6 +146,7 @@ impl Method {
             Method::Continuous => "continuous",
             Method::EvidentialTemporal => "evidential_temporal",
             Method::ParticleFilter => "particle_filter",
+            Method::ContinuousTemporal => "continuous_temporal",
         }
     }
 }
@@ -384,6 +390,11 @@ impl Method {
                 &settings.temporal,
                 data,
             )?),
+            Method::ContinuousTemporal => Box::new(ContinuousTemporal::fit(
+                &settings.continuous,
+                &settings.temporal,
+                data,
+            )?),
             Method::ParticleFilter => Box::new(ParticleFilter::fit(
                 &settings.particle_filter,
                 &settings.temporal,
@@ -548,16 +559,18 @@ pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         Some(Continuous::METHOD) => Box::new(Continuous::load(path)?),
         Some(TemporalEvidential::METHOD) => Box::new(TemporalEvidential::load(path)?),
         Some(ParticleFilter::METHOD) => Box::new(ParticleFilter::load(path)?),
+        Some(ContinuousTemporal::METHOD) => Box::new(ContinuousTemporal::load(path)?),
         Some(crate::model::METHOD) | None => Box::new(Evidential::load(path)?),
         Some(other) => {
             return Err(ModelError::File {
                 path: path.to_path_buf(),
                 source: Box::new(ModelError::Corrupted(format!(
-                "unknown method `{other}`: this build reads `{}`, `{}`, `{}`, `{}`, `{}`, `{}` and `{}` model files",
+                "unknown method `{other}`: this build reads `{}`, `{}`, `{}`, `{}`, `{}`, `{}`, `{}` and `{}` model files",
                 crate::model::METHOD,
                 TemporalEvidential::METHOD,
                 ParticleFilter::METHOD,
                 Continuous::METHOD,
+                ContinuousTemporal::METHOD,
                 Knn::METHOD,
                 Gp::METHOD,
                 Centre::METHOD

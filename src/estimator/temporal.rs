@@ -150,35 +150,13 @@ impl TemporalEvidential {
         }
         let inner = Evidential::fit(evidential, data)?;
         let mut fitted = Self::new(inner, settings.clone(), DEFAULT_RELIABILITY, false)?;
-        match (
-            settings.reliability,
-            &data.validation,
-            data.validation_times,
-        ) {
-            (Some(alpha), _, _) => fitted.file.reliability = alpha,
-            (None, Some(validation), Some(times)) => {
-                let mut errors = Vec::with_capacity(RELIABILITY_CANDIDATES.len());
-                for alpha in RELIABILITY_CANDIDATES {
-                    fitted.file.reliability = alpha;
-                    errors.push(fitted.mean_error(
-                        times,
-                        validation.rows,
-                        validation.poses,
-                        data,
-                    )?);
-                }
-                let best = errors.iter().copied().fold(f64::INFINITY, f64::min);
-                // Ties (a validation motion the past cannot improve on) go to the most reliable:
-                // the reach is a hard bound when the speed limit holds.
-                fitted.file.reliability = RELIABILITY_CANDIDATES
-                    .iter()
-                    .zip(&errors)
-                    .rev()
-                    .find(|(_, &e)| e <= best * (1.0 + RELIABILITY_TIE))
-                    .map_or(DEFAULT_RELIABILITY, |(&alpha, _)| alpha);
-                fitted.file.reliability_learned = true;
-            }
-            _ => {}
+        let learned = learned_reliability(settings, data, |alpha| {
+            fitted.file.reliability = alpha;
+            validation_error(&fitted, data)
+        })?;
+        if let Some(alpha) = learned {
+            fitted.file.reliability = alpha;
+            fitted.file.reliability_learned = settings.reliability.is_none();
         }
         Ok(fitted)
     }
@@ -198,25 +176,6 @@ impl TemporalEvidential {
             evidential_model: inner.to_json()?,
         };
         Ok(Self { inner, file })
-    }
-
-    /// Mean error over a motion (frames without an estimate count as the missing penalty).
-    fn mean_error(
-        &self,
-        times: &[f64],
-        rows: &[Vec<Option<f64>>],
-        truth: &[[f64; 2]],
-        data: &TrainingSet,
-    ) -> Result<f64, EstimatorError> {
-        let mut motion = self.start_motion();
-        let mut total = 0.0;
-        for ((&t, row), &q) in times.iter().zip(rows).zip(truth) {
-            total += motion
-                .next(t, row)?
-                .pose
-                .map_or(data.missing_penalty, |p| distance(p, q));
-        }
-        Ok(total / rows.len().max(1) as f64)
     }
 
     /// The settings it was fitted with.
@@ -359,6 +318,55 @@ impl MotionTracker for EvidentialMotion<'_> {
         self.past = Some((time, moved));
         Ok(estimate)
     }
+}
+
+/// α as given, or learned on the validation motion: the candidate with the lowest
+/// `validation_error(α)`, the largest among ties. `None` when it is neither given nor learnable
+/// (no validation motion with timestamps).
+pub(super) fn learned_reliability(
+    settings: &TemporalSettings,
+    data: &TrainingSet,
+    mut validation_error: impl FnMut(f64) -> Result<f64, EstimatorError>,
+) -> Result<Option<f64>, EstimatorError> {
+    if let Some(alpha) = settings.reliability {
+        return Ok(Some(alpha));
+    }
+    if data.validation.is_none() || data.validation_times.is_none() {
+        return Ok(None);
+    }
+    let errors = RELIABILITY_CANDIDATES
+        .iter()
+        .map(|&alpha| validation_error(alpha))
+        .collect::<Result<Vec<_>, _>>()?;
+    let best = errors.iter().copied().fold(f64::INFINITY, f64::min);
+    // Ties (a validation motion the past cannot improve on) go to the most reliable: the reach
+    // is a hard bound when the speed limit holds.
+    Ok(RELIABILITY_CANDIDATES
+        .iter()
+        .zip(&errors)
+        .rev()
+        .find(|(_, &e)| e <= best * (1.0 + RELIABILITY_TIE))
+        .map(|(&alpha, _)| alpha))
+}
+
+/// Mean error of `estimator` over the validation motion, frames in order (frames without an
+/// estimate count as the missing penalty); 0 without one.
+pub(super) fn validation_error(
+    estimator: &dyn PoseEstimator,
+    data: &TrainingSet,
+) -> Result<f64, EstimatorError> {
+    let (Some(validation), Some(times)) = (&data.validation, data.validation_times) else {
+        return Ok(0.0);
+    };
+    let mut motion = estimator.start_motion();
+    let mut total = 0.0;
+    for ((&t, row), &q) in times.iter().zip(validation.rows).zip(validation.poses) {
+        total += motion
+            .next(t, row)?
+            .pose
+            .map_or(data.missing_penalty, |p| distance(p, q));
+    }
+    Ok(total / validation.rows.len().max(1) as f64)
 }
 
 /// The contour scaled to maximum 1; `None` when it has no positive finite maximum.

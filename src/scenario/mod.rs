@@ -297,7 +297,11 @@ impl Scenario {
             self.gp.check().map_err(|e| invalid(format!("[gp]: {e}")))?;
         }
         let runs = |methods: &[Method]| self.estimators.iter().any(|m| methods.contains(m));
-        if runs(&[Method::EvidentialTemporal, Method::ParticleFilter]) {
+        if runs(&[
+            Method::EvidentialTemporal,
+            Method::ContinuousTemporal,
+            Method::ParticleFilter,
+        ]) {
             self.temporal
                 .check()
                 .map_err(|e| invalid(format!("[temporal]: {e}")))?;
@@ -317,7 +321,21 @@ impl Scenario {
                     .into(),
             ));
         }
-        if runs(&[Method::Continuous, Method::ParticleFilter]) {
+        if runs(&[Method::ContinuousTemporal])
+            && matches!(self.continuous.selection, SelectionPolicy::Splitting { .. })
+        {
+            return Err(invalid(
+                "[continuous]: the continuous tracker over time takes `selection` largest_subset \
+                 or lowest_conflict, not splitting: list the methods without \
+                 \"continuous_temporal\" in `estimators`"
+                    .into(),
+            ));
+        }
+        if runs(&[
+            Method::Continuous,
+            Method::ContinuousTemporal,
+            Method::ParticleFilter,
+        ]) {
             self.continuous
                 .check()
                 .map_err(|e| invalid(format!("[continuous]: {e}")))?;

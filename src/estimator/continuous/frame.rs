@@ -26,6 +26,37 @@ pub(super) struct GroupFit {
     pub curvature: [[f64; 2]; 2],
 }
 
+/// The belief carried from the past frames as one more term of a group's χ² (bit
+/// `features` of a mask): the consonant function with contour c(q) = 1 − α + α·exp(−½ z²),
+/// z = max(0, |q − centre| − reach)/scale, whose χ² term is −2 ln c.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct PastTerm {
+    pub centre: [f64; 2],
+    pub reach: f64,
+    pub scale: f64,
+    pub reliability: f64,
+}
+
+impl PastTerm {
+    /// −2 ln c(q) and its gradient.
+    fn chi2(&self, q: [f64; 2]) -> (f64, [f64; 2]) {
+        let d = [q[0] - self.centre[0], q[1] - self.centre[1]];
+        let distance = d[0].hypot(d[1]);
+        let over = (distance - self.reach).max(0.0);
+        if over <= 0.0 {
+            return (0.0, [0.0; 2]);
+        }
+        let z = over / self.scale;
+        let e = (-0.5 * z * z).exp();
+        let c = 1.0 - self.reliability + self.reliability * e;
+        if c <= 0.0 {
+            return (f64::INFINITY, [0.0; 2]);
+        }
+        let slope = 2.0 * self.reliability * z * e / c / self.scale / distance;
+        (-2.0 * c.ln(), [slope * d[0], slope * d[1]])
+    }
+}
+
 /// One frame's measurements against the model, with every group fit memoised.
 pub(super) struct Frame<'a> {
     model: &'a Continuous,
@@ -35,6 +66,8 @@ pub(super) struct Frame<'a> {
     fits: HashMap<GroupMask, GroupFit>,
     /// z_i² at every sample pose for the usable features (sample-major, one per feature).
     sample_z2: Vec<f64>,
+    /// The carried belief, when tracking over time.
+    past: Option<PastTerm>,
 }
 
 impl<'a> Frame<'a> {
@@ -63,7 +96,20 @@ impl<'a> Frame<'a> {
             usable_mask,
             fits: HashMap::new(),
             sample_z2,
+            past: None,
         }
+    }
+
+    /// The same frame with the carried belief as bit [`Frame::past_bit`] (no fit made yet).
+    pub(super) fn with_past(mut self, past: PastTerm) -> Self {
+        self.fits.clear();
+        self.past = Some(past);
+        self
+    }
+
+    /// The mask bit of the carried belief.
+    pub(super) fn past_bit(&self) -> GroupMask {
+        1 << self.values.len()
     }
 
     /// Σ_{i∈group} z_i² at pose `q`, with the Jacobian rows of the z_i when asked.
@@ -83,7 +129,7 @@ impl<'a> Frame<'a> {
         let mut chi2 = 0.0;
         let mut residuals = Vec::with_capacity(group.count_ones() as usize);
         let mut jac_rows = Vec::new();
-        for i in members(group) {
+        for i in members(group & !self.past_bit()) {
             let Some(y) = self.values[i] else { continue };
             let s = self.model.file.residual_scales[i];
             let z = (y - f[i]) / s;
@@ -91,6 +137,16 @@ impl<'a> Frame<'a> {
             residuals.push(z);
             if want_jacobian {
                 jac_rows.push([-jac[i][0] / s, -jac[i][1] / s]);
+            }
+        }
+        if let (Some(past), true) = (&self.past, group & self.past_bit() != 0) {
+            let (term, gradient) = past.chi2(q);
+            let r = term.sqrt();
+            chi2 += term;
+            residuals.push(r);
+            if want_jacobian {
+                let half = if r > 0.0 { 0.5 / r } else { 0.0 };
+                jac_rows.push([gradient[0] * half, gradient[1] * half]);
             }
         }
         if let Some(rows) = rows {
@@ -107,9 +163,14 @@ impl<'a> Frame<'a> {
     /// The sample pose with the lowest χ² of `group`, and that χ².
     fn best_sample(&self, group: GroupMask) -> ([f64; 2], f64) {
         let d = self.values.len();
+        let past = self.past.filter(|_| group & self.past_bit() != 0);
+        let poses = self.model.sample_poses();
         let mut best = (0, f64::INFINITY);
         for (k, z2) in self.sample_z2.chunks_exact(d).enumerate() {
-            let chi2: f64 = members(group).map(|i| z2[i]).sum();
+            let mut chi2: f64 = members(group & !self.past_bit()).map(|i| z2[i]).sum();
+            if let Some(past) = &past {
+                chi2 += past.chi2(poses[k]).0;
+            }
             if chi2 < best.1 {
                 best = (k, chi2);
             }
@@ -183,6 +244,9 @@ impl<'a> Frame<'a> {
     /// poses (0 when some sample pose explains the value), a lower bound of every group's level
     /// it takes part in.
     fn own_level(&self, i: usize) -> f64 {
+        if i == self.values.len() {
+            return 0.0;
+        }
         let Some(y) = self.values[i] else {
             return f64::INFINITY;
         };

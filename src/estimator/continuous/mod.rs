@@ -21,6 +21,7 @@
 
 mod frame;
 mod surrogate;
+mod temporal;
 
 use crate::range::within;
 use std::path::Path;
@@ -50,6 +51,7 @@ use crate::report::distance;
 use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
 use frame::{members, Frame};
 use surrogate::{fit_hyperparameters, Surrogate};
+pub use temporal::ContinuousTemporal;
 
 /// How the continuous evidential tracker is fitted and run (`[continuous]` in a scenario).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -1,0 +1,366 @@
+//! The continuous tracker over time (issue 17): the carried belief of
+//! [`crate::estimator::TemporalEvidential`] in the continuous tracker's terms.
+//!
+//! - The carried belief is consonant: a flat top of radius `max_speed` × Δt around the last
+//!   estimate, falling off as a Gaussian of the last fit's broadest spread (1/√ of the smallest
+//!   eigenvalue of its curvature), discounted by α: its χ² term is −2 ln c(q)
+//!   ([`super::frame::PastTerm`]), one more term of a group's χ² and bit `features` of its mask.
+//! - The frame's own choice (the paper's selection on its features) competes with the past plus
+//!   the largest group of features it can be combined with below the threshold, the past counting
+//!   as `past_weight` features, as in the discrete tracker.
+//! - A frame without a usable feature, or one the past outweighs entirely, gets the prediction
+//!   (`predicted`): the last estimate, with the reach growing until a frame is usable.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::frame::{members, Frame, PastTerm};
+use super::Continuous;
+use crate::estimator::centre::{corrupted, frame_values, parse_file, write_file};
+use crate::estimator::temporal::{learned_reliability, validation_error, DEFAULT_RELIABILITY};
+use crate::estimator::{
+    ContinuousSettings, EstimatorError, MotionTracker, PlausibilityRegion, PoseEstimate,
+    PoseEstimator, TemporalSettings, TrainingSet,
+};
+use crate::features::FeatureConfig;
+use crate::model::ModelError;
+use crate::range::within;
+use crate::track::{select_group, GroupLevels, GroupMask};
+
+/// The continuous tracker over time, fitted.
+#[derive(Debug, Clone)]
+pub struct ContinuousTemporal {
+    inner: Continuous,
+    file: ContinuousTemporalFile,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ContinuousTemporalFile {
+    format_version: u32,
+    method: String,
+    settings: TemporalSettings,
+    reliability: f64,
+    reliability_learned: bool,
+    /// The continuous tracker's model file text.
+    continuous_model: String,
+}
+
+impl ContinuousTemporal {
+    /// Version of the model file format this build writes and reads.
+    pub const FORMAT_VERSION: u32 = 1;
+    /// The `method` of its model files.
+    pub const METHOD: &'static str = "continuous_temporal";
+
+    /// Fits the continuous tracker on `data`, then learns α on the validation motion when it is
+    /// not given.
+    ///
+    /// # Errors
+    /// Invalid settings; the continuous tracker's fitting errors.
+    pub fn fit(
+        continuous: &ContinuousSettings,
+        settings: &TemporalSettings,
+        data: &TrainingSet,
+    ) -> Result<Self, EstimatorError> {
+        settings.check()?;
+        if let crate::track::SelectionPolicy::Splitting { .. } = continuous.selection {
+            return Err(EstimatorError::Training(
+                "the continuous tracker over time takes `continuous.selection` largest_subset or \
+                 lowest_conflict, not splitting"
+                    .into(),
+            ));
+        }
+        let inner = Continuous::fit(continuous, data)?;
+        let mut fitted = Self {
+            file: ContinuousTemporalFile {
+                format_version: Self::FORMAT_VERSION,
+                method: Self::METHOD.into(),
+                settings: settings.clone(),
+                reliability: DEFAULT_RELIABILITY,
+                reliability_learned: false,
+                continuous_model: inner.to_json()?,
+            },
+            inner,
+        };
+        let learned = learned_reliability(settings, data, |alpha| {
+            fitted.file.reliability = alpha;
+            validation_error(&fitted, data)
+        })?;
+        if let Some(alpha) = learned {
+            fitted.file.reliability = alpha;
+            fitted.file.reliability_learned = settings.reliability.is_none();
+        }
+        Ok(fitted)
+    }
+
+    /// The reliability α of the carried belief, and whether it was learned.
+    pub fn reliability(&self) -> (f64, bool) {
+        (self.file.reliability, self.file.reliability_learned)
+    }
+
+    /// Reads a model file's text.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Model`] naming what is wrong.
+    pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
+        let file: ContinuousTemporalFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        file.settings
+            .check()
+            .map_err(|e| corrupted(format!("settings: {e}")))?;
+        within(file.reliability, 0.0..=1.0).map_err(|e| corrupted(format!("reliability: {e}")))?;
+        let inner = Continuous::from_json(&file.continuous_model).map_err(|e| match e {
+            EstimatorError::Model(m) => corrupted(format!("continuous_model: {m}")),
+            other => other,
+        })?;
+        Ok(Self { inner, file })
+    }
+
+    /// Reads a model file.
+    ///
+    /// # Errors
+    /// As [`ContinuousTemporal::from_json`], naming the path.
+    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
+        let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_json(&text).map_err(|e| match e {
+            EstimatorError::Model(source) => ModelError::File {
+                path: path.to_path_buf(),
+                source: Box::new(source),
+            }
+            .into(),
+            other => other,
+        })
+    }
+}
+
+impl PoseEstimator for ContinuousTemporal {
+    fn method(&self) -> &'static str {
+        Self::METHOD
+    }
+
+    fn feature_names(&self) -> &[String] {
+        self.inner.feature_names()
+    }
+
+    fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.inner.feature_config()
+    }
+
+    /// A frame alone has no past: the continuous tracker's estimate.
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
+        self.inner.estimate(features)
+    }
+
+    fn to_json(&self) -> Result<String, EstimatorError> {
+        write_file(&self.file)
+    }
+
+    fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
+        Box::new(ContinuousMotion {
+            estimator: self,
+            past: None,
+        })
+    }
+}
+
+/// The last measured frame: its time, estimate and the spread of its belief (mm).
+#[derive(Debug, Clone, Copy)]
+struct Last {
+    time: f64,
+    pose: [f64; 2],
+    scale: f64,
+}
+
+struct ContinuousMotion<'a> {
+    estimator: &'a ContinuousTemporal,
+    past: Option<Last>,
+}
+
+/// Groups that hold the carried belief, as groups of the features beside it.
+struct WithPast<'f, 'a> {
+    frame: &'f mut Frame<'a>,
+}
+
+impl GroupLevels for WithPast<'_, '_> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        let past = self.frame.past_bit();
+        0.5 * self.frame.fit(1 << i | 1 << j | past).chi2
+    }
+
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        let past = self.frame.past_bit();
+        0.5 * self.frame.fit(group | past).chi2
+    }
+
+    fn levels_grow_exactly(&self) -> bool {
+        false
+    }
+
+    /// Never asked: every node was admitted beside the past, so each alone is eligible.
+    fn fallback_feature(&self) -> Option<usize> {
+        None
+    }
+}
+
+/// 1/√ of the smallest eigenvalue of a curvature (mm), kept within [1 µm, 19 mm].
+fn broadest_spread(curvature: [[f64; 2]; 2]) -> f64 {
+    let [[a, b], [_, c]] = curvature;
+    let smallest = 0.5 * (a + c - ((a - c) * (a - c) + 4.0 * b * b).sqrt());
+    let spread = 1.0 / smallest.max(0.0).sqrt();
+    if spread.is_finite() {
+        spread.clamp(1e-3, 19.0)
+    } else {
+        19.0
+    }
+}
+
+impl MotionTracker for ContinuousMotion<'_> {
+    fn next(
+        &mut self,
+        time: f64,
+        features: &[Option<f64>],
+    ) -> Result<PoseEstimate, EstimatorError> {
+        let model = &self.estimator.inner;
+        let Some(last) = self.past else {
+            let estimate = model.estimate(features)?;
+            if let Some(pose) = estimate.pose {
+                let mut frame = Frame::new(
+                    model,
+                    model.usable(frame_values(features, model.file.feature_names.len())?.0),
+                );
+                let group = estimate
+                    .group
+                    .iter()
+                    .flatten()
+                    .fold(0, |m: GroupMask, &i| m | 1 << i);
+                let scale = broadest_spread(frame.fit(group).curvature);
+                self.past = Some(Last { time, pose, scale });
+            }
+            return Ok(estimate);
+        };
+        let settings = &self.estimator.file.settings;
+        let (values, missing) = frame_values(features, model.file.feature_names.len())?;
+        let past = PastTerm {
+            centre: last.pose,
+            reach: settings.max_speed * (time - last.time).max(0.0),
+            scale: last.scale,
+            reliability: self.estimator.file.reliability,
+        };
+        let mut frame = Frame::new(model, model.usable(values)).with_past(past);
+        let usable = frame.usable_mask;
+        let predicted = |missing: Vec<usize>, excluded: Vec<usize>| PoseEstimate {
+            pose: Some(last.pose),
+            uncertainty_radius: Some(past.reach + last.scale),
+            group: Some(Vec::new()),
+            conflict_level: None,
+            detection_score: None,
+            region: None,
+            flags: crate::estimator::EstimateFlags {
+                missing,
+                excluded,
+                predicted: true,
+                ..Default::default()
+            },
+        };
+        if usable == 0 {
+            return Ok(predicted(missing, Vec::new()));
+        }
+        let alone = frame.select();
+        let threshold = model.threshold();
+        let past_bit = frame.past_bit();
+        let beside = members(usable)
+            .filter(|&i| threshold.admits(0.5 * frame.fit(1 << i | past_bit).chi2))
+            .fold(0, |m: GroupMask, i| m | 1 << i);
+        let with_past = match beside.count_ones() {
+            0 => 0,
+            1 => beside,
+            _ => {
+                let features = model.file.feature_names.len();
+                let policy = model.file.settings.selection;
+                let choice = select_group(
+                    &mut WithPast { frame: &mut frame },
+                    features,
+                    beside,
+                    policy,
+                    threshold,
+                );
+                match choice.chosen {
+                    Some((_, group)) if !choice.fallback => group,
+                    _ => members(beside)
+                        .min_by(|&a, &b| {
+                            let (ka, kb) = (
+                                frame.fit(1 << a | past_bit).chi2,
+                                frame.fit(1 << b | past_bit).chi2,
+                            );
+                            ka.total_cmp(&kb).then(a.cmp(&b))
+                        })
+                        .map_or(0, |i| 1 << i),
+                }
+            }
+        };
+        let frame_worth = match alone.chosen {
+            Some((_, group)) if !alone.fallback => group.count_ones() as f64,
+            Some(_) => 1.0,
+            None => 0.0,
+        };
+        let weight = settings
+            .past_weight
+            .unwrap_or(0.5 * model.file.feature_names.len() as f64);
+        let past_joins = with_past.count_ones() as f64 + weight > frame_worth;
+        let (group, level) = match (past_joins, alone.chosen) {
+            (true, _) => {
+                if with_past == 0 {
+                    return Ok(predicted(missing, members(usable).collect()));
+                }
+                let group = with_past | past_bit;
+                (group, 0.5 * frame.fit(group).chi2)
+            }
+            (false, Some((level, group))) => (group, level),
+            (false, None) => return Ok(predicted(missing, Vec::new())),
+        };
+        let fit = frame.fit(group);
+        let terms = group.count_ones();
+        let region = (terms >= 2)
+            .then(|| {
+                PlausibilityRegion::from_curvature(
+                    fit.pose,
+                    fit.curvature,
+                    model.file.region_chi2,
+                    model.region_level(),
+                )
+            })
+            .flatten();
+        let features_only = group & !past_bit;
+        // Combined with the past, the belief is no broader than the carried one (a group of
+        // one feature and the past's flat top has no curvature across the feature's curve).
+        let spread = broadest_spread(fit.curvature);
+        let scale = if past_joins {
+            spread.min(past.scale + past.reach)
+        } else {
+            spread
+        };
+        self.past = Some(Last {
+            time,
+            pose: fit.pose,
+            scale,
+        });
+        Ok(PoseEstimate {
+            pose: Some(fit.pose),
+            uncertainty_radius: region.as_ref().map(|r| r.semi_major),
+            group: Some(members(features_only).collect()),
+            conflict_level: Some(level),
+            detection_score: Some(0.5 * frame.fit(usable).chi2),
+            region,
+            flags: crate::estimator::EstimateFlags {
+                missing,
+                excluded: members(usable & !features_only).collect(),
+                fallback: !past_joins && alone.fallback,
+                past_rejected: !past_joins,
+                ..Default::default()
+            },
+        })
+    }
+}
