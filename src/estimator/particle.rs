@@ -20,13 +20,12 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::centre::{corrupted, frame_values, parse_file, write_file};
+use super::centre::{corrupted, frame_values, load_file, parse_file, write_file};
 use super::{
     Continuous, ContinuousSettings, EstimateFlags, EstimatorError, MotionTracker, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,
 };
 use crate::features::FeatureConfig;
-use crate::model::ModelError;
 use crate::range::within;
 
 /// The particle filter's own settings (`[particle_filter]` in scenarios).
@@ -163,18 +162,7 @@ impl ParticleFilter {
     /// # Errors
     /// As [`ParticleFilter::from_json`], naming the path.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::from_json(&text).map_err(|e| match e {
-            EstimatorError::Model(source) => ModelError::File {
-                path: path.to_path_buf(),
-                source: Box::new(source),
-            }
-            .into(),
-            other => other,
-        })
+        load_file(path, Self::from_json)
     }
 
     /// log p(features | q) with the frame's usable `values`.

@@ -21,14 +21,14 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::centre::{corrupted, parse_file, write_file};
+use super::centre::{corrupted, load_file, parse_file, write_file};
 use super::evidential::pose_estimate;
 use super::{
     EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
     TrainingSet,
 };
 use crate::features::FeatureConfig;
-use crate::model::{EvidentialModel, ModelError};
+use crate::model::EvidentialModel;
 use crate::range::within;
 use crate::report::distance;
 use crate::track::SelectionPolicy;
@@ -219,18 +219,7 @@ impl TemporalEvidential {
     /// # Errors
     /// As [`TemporalEvidential::from_json`], naming the path.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::from_json(&text).map_err(|e| match e {
-            EstimatorError::Model(source) => ModelError::File {
-                path: path.to_path_buf(),
-                source: Box::new(source),
-            }
-            .into(),
-            other => other,
-        })
+        load_file(path, Self::from_json)
     }
 }
 

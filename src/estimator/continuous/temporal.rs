@@ -17,14 +17,13 @@ use serde::{Deserialize, Serialize};
 
 use super::frame::{members, Frame, PastTerm};
 use super::Continuous;
-use crate::estimator::centre::{corrupted, frame_values, parse_file, write_file};
+use crate::estimator::centre::{corrupted, frame_values, load_file, parse_file, write_file};
 use crate::estimator::temporal::{learned_reliability, validation_error, DEFAULT_RELIABILITY};
 use crate::estimator::{
     ContinuousSettings, EstimatorError, MotionTracker, PlausibilityRegion, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,
 };
 use crate::features::FeatureConfig;
-use crate::model::ModelError;
 use crate::range::within;
 use crate::track::{select_group, GroupLevels, GroupMask};
 
@@ -121,18 +120,7 @@ impl ContinuousTemporal {
     /// # Errors
     /// As [`ContinuousTemporal::from_json`], naming the path.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::from_json(&text).map_err(|e| match e {
-            EstimatorError::Model(source) => ModelError::File {
-                path: path.to_path_buf(),
-                source: Box::new(source),
-            }
-            .into(),
-            other => other,
-        })
+        load_file(path, Self::from_json)
     }
 }
 
