@@ -4,8 +4,8 @@
 
 use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
 use evitrack::estimator::{
-    ContinuousTemporal, EstimatorSettings, Labelled, Method, ParticleFilter, PoseEstimate,
-    PoseEstimator, TemporalEvidential, TemporalSettings, TrainingSet,
+    ContinuousTemporal, EstimatorError, EstimatorSettings, Labelled, Method, ParticleFilter,
+    PoseEstimate, PoseEstimator, TemporalEvidential, TemporalSettings, TrainingSet,
 };
 use evitrack::model::{ModelSettings, StateCounts};
 use rand::SeedableRng;
@@ -152,6 +152,30 @@ fn check_predictions(method: &str, truth: &[[f64; 2]], estimates: &[PoseEstimate
     }
 }
 
+/// The estimates are the same on a second run and after a model-file round trip through
+/// `from_json`; the file with `field` edited from `good` to `bad` is refused, naming the field.
+fn check_model_file<T: PoseEstimator>(
+    estimator: &dyn PoseEstimator,
+    estimates: &[PoseEstimate],
+    from_json: fn(&str) -> Result<T, EstimatorError>,
+    (field, good, bad): (&str, &str, &str),
+) {
+    assert_eq!(bits(&run(estimator).1), bits(estimates), "deterministic");
+    let text = estimator.to_json().unwrap();
+    let loaded = from_json(&text).unwrap();
+    assert_eq!(bits(&run(&loaded).1), bits(estimates), "round trip");
+    let broken = text.replace(
+        &format!("\"{field}\": {good}"),
+        &format!("\"{field}\": {bad}"),
+    );
+    assert_ne!(broken, text, "`{field}: {good}` is in the file");
+    let error = match from_json(&broken) {
+        Ok(_) => panic!("`{field}: {bad}` was accepted"),
+        Err(e) => e.to_string(),
+    };
+    assert!(error.contains(field), "{error}");
+}
+
 #[test]
 fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
     let data = Data::new();
@@ -177,20 +201,12 @@ fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
     let (_, alone) = run(per_frame.as_ref());
     assert!(DROPPED.clone().all(|k| alone[k].pose.is_none()));
 
-    assert_eq!(
-        bits(&run(estimator.as_ref()).1),
-        bits(&estimates),
-        "deterministic"
+    check_model_file(
+        estimator.as_ref(),
+        &estimates,
+        TemporalEvidential::from_json,
+        ("reliability", "0.9", "2.0"),
     );
-    let text = estimator.to_json().unwrap();
-    let loaded = TemporalEvidential::from_json(&text).unwrap();
-    assert_eq!(bits(&run(&loaded).1), bits(&estimates), "round trip");
-    let broken = text.replace("\"reliability\": 0.9", "\"reliability\": 2.0");
-    assert_ne!(broken, text);
-    let error = TemporalEvidential::from_json(&broken)
-        .unwrap_err()
-        .to_string();
-    assert!(error.contains("reliability"), "{error}");
 }
 
 #[test]
@@ -201,18 +217,12 @@ fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
         .unwrap();
     let (truth, estimates) = run(estimator.as_ref());
     check_predictions("particle_filter", &truth, &estimates, 1.5);
-    assert_eq!(
-        bits(&run(estimator.as_ref()).1),
-        bits(&estimates),
-        "deterministic"
+    check_model_file(
+        estimator.as_ref(),
+        &estimates,
+        ParticleFilter::from_json,
+        ("particles", "1000", "0"),
     );
-    let text = estimator.to_json().unwrap();
-    let loaded = ParticleFilter::from_json(&text).unwrap();
-    assert_eq!(bits(&run(&loaded).1), bits(&estimates), "round trip");
-    let broken = text.replace("\"particles\": 1000", "\"particles\": 0");
-    assert_ne!(broken, text);
-    let error = ParticleFilter::from_json(&broken).unwrap_err().to_string();
-    assert!(error.contains("particles"), "{error}");
 }
 
 #[test]
@@ -248,18 +258,10 @@ fn the_continuous_tracker_over_time_predicts_lost_frames_and_round_trips() {
             .sum()
     };
     assert!(measured_error(&estimates) <= measured_error(&alone) * 1.01);
-    assert_eq!(
-        bits(&run(estimator.as_ref()).1),
-        bits(&estimates),
-        "deterministic"
+    check_model_file(
+        estimator.as_ref(),
+        &estimates,
+        ContinuousTemporal::from_json,
+        ("reliability", "0.9", "-1.0"),
     );
-    let text = estimator.to_json().unwrap();
-    let loaded = ContinuousTemporal::from_json(&text).unwrap();
-    assert_eq!(bits(&run(&loaded).1), bits(&estimates), "round trip");
-    let broken = text.replace("\"reliability\": 0.9", "\"reliability\": -1.0");
-    assert_ne!(broken, text);
-    let error = ContinuousTemporal::from_json(&broken)
-        .unwrap_err()
-        .to_string();
-    assert!(error.contains("reliability"), "{error}");
 }

@@ -75,6 +75,12 @@ impl Default for TemporalSettings {
 }
 
 impl TemporalSettings {
+    /// How many features the past counts as with `features` features: `past_weight`, or half
+    /// of them.
+    pub fn past_weight_for(&self, features: usize) -> f64 {
+        self.past_weight.unwrap_or(0.5 * features as f64)
+    }
+
     /// Checks the ranges.
     ///
     /// # Errors
@@ -279,9 +285,7 @@ impl MotionTracker for EvidentialMotion<'_> {
         let carried: Vec<f64> = moved.iter().map(|&m| 1.0 - alpha + alpha * m).collect();
         let likelihoods = inner.model().frames().likelihoods(features)?;
         let settings = &self.estimator.file.settings;
-        let weight = settings
-            .past_weight
-            .unwrap_or(0.5 * likelihoods.len() as f64);
+        let weight = settings.past_weight_for(likelihoods.len());
         let outcome = tracker.track_with_past(&likelihoods, &carried, weight)?;
         let mut estimate = pose_estimate(outcome.frame.clone());
         if outcome.frame.estimate.is_some() {

@@ -17,7 +17,7 @@ mod tracker;
 mod tuples;
 
 pub use model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
-pub use past::PastFrame;
+pub use past::{group_beside_past, past_outweighs, PastFrame};
 pub use select::{members, select_group, GroupLevels, GroupMask, Selection};
 pub use settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
 pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};

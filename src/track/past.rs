@@ -16,6 +16,7 @@ use super::settings::SelectionPolicy;
 use super::tracker::{FrameEstimate, Tracker, Usable};
 use super::TrackError;
 use crate::evidence::dempster_all;
+use crate::evidence::ConflictLevel;
 
 /// What the past did in one frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -98,33 +99,86 @@ impl GroupLevels for PastLevels<'_> {
     }
 }
 
-/// The groups that contain the carried belief, seen as groups of the features beside it: the
-/// selection on them finds the largest set of features that can be combined with the past.
-struct WithPast<'a, 'b> {
-    levels: &'b mut PastLevels<'a>,
+/// Groups that hold the carried belief (bit `past`), seen as groups of the features beside it.
+struct BesidePast<'l, L> {
+    levels: &'l mut L,
+    past: GroupMask,
 }
 
-impl WithPast<'_, '_> {
-    fn past_bit(&self) -> GroupMask {
-        1 << self.levels.past
-    }
-}
-
-impl GroupLevels for WithPast<'_, '_> {
+impl<L: GroupLevels> GroupLevels for BesidePast<'_, L> {
     fn pair_level(&mut self, i: usize, j: usize) -> f64 {
-        let group = 1 << i | 1 << j | self.past_bit();
-        self.levels.group_level(group)
+        self.levels.group_level(1 << i | 1 << j | self.past)
     }
 
     fn group_level(&mut self, group: GroupMask) -> f64 {
-        let group = group | self.past_bit();
-        self.levels.group_level(group)
+        self.levels.group_level(group | self.past)
+    }
+
+    fn levels_grow_exactly(&self) -> bool {
+        self.levels.levels_grow_exactly()
     }
 
     /// Never asked: every node was admitted beside the past, so each alone is eligible.
     fn fallback_feature(&self) -> Option<usize> {
         None
     }
+}
+
+/// The past's side of a frame with the carried belief as bit `past` of `levels`' masks (the
+/// features are the bits below): the largest group of `usable` features that combines with it
+/// within `threshold` under `policy` (when no pair does, the single feature closest to it), and
+/// that group's level with the past; `(0, 0)` when no feature combines with the past.
+pub fn group_beside_past(
+    levels: &mut impl GroupLevels,
+    usable: GroupMask,
+    past: usize,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+) -> (GroupMask, f64) {
+    let past_bit: GroupMask = 1 << past;
+    let beside = members(usable)
+        .filter(|&i| threshold.admits(levels.group_level(1 << i | past_bit)))
+        .fold(0, |m: GroupMask, i| m | 1 << i);
+    let features = match beside.count_ones() {
+        0 => return (0, 0.0),
+        1 => beside,
+        _ => {
+            let mut view = BesidePast {
+                levels: &mut *levels,
+                past: past_bit,
+            };
+            let choice = select_group(&mut view, past, beside, policy, threshold);
+            match choice.chosen {
+                Some((level, group)) if !choice.fallback => return (group, level),
+                _ => members(beside)
+                    .min_by(|&a, &b| {
+                        let (ka, kb) = (
+                            levels.group_level(1 << a | past_bit),
+                            levels.group_level(1 << b | past_bit),
+                        );
+                        ka.total_cmp(&kb).then(a.cmp(&b))
+                    })
+                    .map_or(0, |i| 1 << i),
+            }
+        }
+    };
+    (features, levels.group_level(features | past_bit))
+}
+
+/// Whether the past, worth `past_weight` features, and the `beside` features combined with it
+/// outweigh the frame's own choice (its group and whether it was the fallback, which counts as
+/// one feature).
+pub fn past_outweighs(
+    frame: Option<(GroupMask, bool)>,
+    beside: GroupMask,
+    past_weight: f64,
+) -> bool {
+    let worth = match frame {
+        Some((group, false)) => group.count_ones() as f64,
+        Some((_, true)) => 1.0,
+        None => 0.0,
+    };
+    beside.count_ones() as f64 + past_weight > worth
 }
 
 impl Tracker {
@@ -193,46 +247,15 @@ impl Tracker {
             cell_max,
             memo: HashMap::new(),
         };
-        let threshold = self.settings.conflict_threshold;
-        let beside = members(usable_mask)
-            .filter(|&i| threshold.admits(levels.past_level(1 << i)))
-            .fold(0, |m: GroupMask, i| m | 1 << i);
-        let (features, level) = match beside.count_ones() {
-            0 => (0, 0.0),
-            1 => (beside, levels.past_level(beside)),
-            _ => {
-                let selection = select_group(
-                    &mut WithPast {
-                        levels: &mut levels,
-                    },
-                    f,
-                    beside,
-                    self.settings.selection,
-                    threshold,
-                );
-                match selection.chosen {
-                    Some((level, group)) if !selection.fallback => (group, level),
-                    // No pair combines beside the past: the feature closest to it.
-                    _ => {
-                        let best = members(beside)
-                            .min_by(|&a, &b| {
-                                levels
-                                    .past_level(1 << a)
-                                    .total_cmp(&levels.past_level(1 << b))
-                                    .then(a.cmp(&b))
-                            })
-                            .map_or(0, |i| 1 << i);
-                        (best, levels.past_level(best))
-                    }
-                }
-            }
-        };
-        let frame_worth = if alone.flags.fallback {
-            1.0
-        } else {
-            alone.group.len() as f64
-        };
-        if features.count_ones() as f64 + past_weight <= frame_worth {
+        let (features, level) = group_beside_past(
+            &mut levels,
+            usable_mask,
+            f,
+            self.settings.selection,
+            self.settings.conflict_threshold,
+        );
+        let own = alone.group.iter().fold(0, |m: GroupMask, &i| m | 1 << i);
+        if !past_outweighs(Some((own, alone.flags.fallback)), features, past_weight) {
             return Ok(frame_alone);
         }
         let Some((estimate, plausibility, uncertainty)) =

@@ -25,7 +25,7 @@ use crate::estimator::{
 };
 use crate::features::FeatureConfig;
 use crate::range::within;
-use crate::track::{select_group, GroupLevels, GroupMask};
+use crate::track::{group_beside_past, past_outweighs, GroupMask};
 
 /// The continuous tracker over time, fitted.
 #[derive(Debug, Clone)]
@@ -167,32 +167,6 @@ struct ContinuousMotion<'a> {
     past: Option<Last>,
 }
 
-/// Groups that hold the carried belief, as groups of the features beside it.
-struct WithPast<'f, 'a> {
-    frame: &'f mut Frame<'a>,
-}
-
-impl GroupLevels for WithPast<'_, '_> {
-    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
-        let past = self.frame.past_bit();
-        0.5 * self.frame.fit(1 << i | 1 << j | past).chi2
-    }
-
-    fn group_level(&mut self, group: GroupMask) -> f64 {
-        let past = self.frame.past_bit();
-        0.5 * self.frame.fit(group | past).chi2
-    }
-
-    fn levels_grow_exactly(&self) -> bool {
-        false
-    }
-
-    /// Never asked: every node was admitted beside the past, so each alone is eligible.
-    fn fallback_feature(&self) -> Option<usize> {
-        None
-    }
-}
-
 /// 1/√ of the smallest eigenvalue of a curvature (mm), kept within [1 µm, 19 mm].
 fn broadest_spread(curvature: [[f64; 2]; 2]) -> f64 {
     let [[a, b], [_, c]] = curvature;
@@ -257,47 +231,18 @@ impl MotionTracker for ContinuousMotion<'_> {
             return Ok(predicted(missing, Vec::new()));
         }
         let alone = frame.select();
-        let threshold = model.threshold();
         let past_bit = frame.past_bit();
-        let beside = members(usable)
-            .filter(|&i| threshold.admits(0.5 * frame.fit(1 << i | past_bit).chi2))
-            .fold(0, |m: GroupMask, i| m | 1 << i);
-        let with_past = match beside.count_ones() {
-            0 => 0,
-            1 => beside,
-            _ => {
-                let features = model.file.feature_names.len();
-                let policy = model.file.settings.selection;
-                let choice = select_group(
-                    &mut WithPast { frame: &mut frame },
-                    features,
-                    beside,
-                    policy,
-                    threshold,
-                );
-                match choice.chosen {
-                    Some((_, group)) if !choice.fallback => group,
-                    _ => members(beside)
-                        .min_by(|&a, &b| {
-                            let (ka, kb) = (
-                                frame.fit(1 << a | past_bit).chi2,
-                                frame.fit(1 << b | past_bit).chi2,
-                            );
-                            ka.total_cmp(&kb).then(a.cmp(&b))
-                        })
-                        .map_or(0, |i| 1 << i),
-                }
-            }
-        };
-        let frame_worth = match alone.chosen {
-            Some((_, group)) if !alone.fallback => group.count_ones() as f64,
-            Some(_) => 1.0,
-            None => 0.0,
-        };
-        let weight = settings
-            .past_weight
-            .unwrap_or(0.5 * model.file.feature_names.len() as f64);
-        let past_joins = with_past.count_ones() as f64 + weight > frame_worth;
+        let features = model.file.feature_names.len();
+        let (with_past, _) = group_beside_past(
+            &mut frame,
+            usable,
+            features,
+            model.file.settings.selection,
+            model.threshold(),
+        );
+        let weight = settings.past_weight_for(features);
+        let frame_choice = alone.chosen.map(|(_, group)| (group, alone.fallback));
+        let past_joins = past_outweighs(frame_choice, with_past, weight);
         let (group, level) = match (past_joins, alone.chosen) {
             (true, _) => {
                 if with_past == 0 {
