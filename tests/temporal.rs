@@ -90,7 +90,7 @@ fn settings(reliability: Option<f64>) -> EstimatorSettings {
     settings.temporal = TemporalSettings {
         max_speed: 20.0,
         reliability,
-        past_weight: None,
+        ..TemporalSettings::default()
     };
     settings.particle_filter.particles = 1000;
     settings
@@ -124,8 +124,8 @@ fn bits(estimates: &[PoseEstimate]) -> Vec<[u64; 2]> {
         .collect()
 }
 
-/// Dropped frames get the prediction, flagged, no further from the last estimate than the
-/// motion model reaches; other frames (after the first `SETTLE`, which a filter needs to settle)
+/// Dropped frames get the prediction, flagged, closer to the path than the last estimate;
+/// other frames (after the first `SETTLE`, which a filter needs to settle)
 /// are measured and track the path.
 fn check_predictions(method: &str, truth: &[[f64; 2]], estimates: &[PoseEstimate], max_error: f64) {
     let last = estimates[DROPPED.start - 1].pose.unwrap();
@@ -139,11 +139,13 @@ fn check_predictions(method: &str, truth: &[[f64; 2]], estimates: &[PoseEstimate
             .pose
             .unwrap_or_else(|| panic!("{method} frame {k}: no estimate"));
         if DROPPED.contains(&k) {
-            let reach = 20.0 * 0.1 * (k + 1 - DROPPED.start) as f64;
-            let moved = (pose[0] - last[0]).hypot(pose[1] - last[1]);
+            // The motion model carries the pose on along the path: closer than holding the last
+            // estimate would be.
+            let error = (pose[0] - truth[k][0]).hypot(pose[1] - truth[k][1]);
+            let held = (last[0] - truth[k][0]).hypot(last[1] - truth[k][1]);
             assert!(
-                moved <= reach + 1e-9,
-                "{method} frame {k}: moved {moved} > {reach}"
+                error < held,
+                "{method} frame {k}: predicted {error} mm off, holding {held}"
             );
         } else if k >= SETTLE {
             let error = (pose[0] - truth[k][0]).hypot(pose[1] - truth[k][1]);
@@ -264,4 +266,34 @@ fn the_continuous_tracker_over_time_predicts_lost_frames_and_round_trips() {
         ContinuousTemporal::from_json,
         ("reliability", "0.9", "-1.0"),
     );
+}
+
+#[test]
+fn without_a_velocity_line_predictions_stay_within_reach_of_the_last_estimate() {
+    let data = Data::new();
+    let mut still = settings(Some(0.9));
+    still.temporal.velocity_frames = 0;
+    for method in [
+        Method::EvidentialTemporal,
+        Method::ContinuousTemporal,
+        Method::ParticleFilter,
+    ] {
+        let estimator = method.fit(&still, &data.training()).unwrap();
+        let (_, estimates) = run(estimator.as_ref());
+        let last = estimates[DROPPED.start - 1].pose.unwrap();
+        for k in DROPPED {
+            assert!(estimates[k].flags.predicted, "{method:?} frame {k}");
+            let pose = estimates[k].pose.unwrap();
+            let reach = 20.0 * 0.1 * (k + 1 - DROPPED.start) as f64;
+            let moved = (pose[0] - last[0]).hypot(pose[1] - last[1]);
+            assert!(
+                moved <= reach + 1e-9,
+                "{method:?} frame {k}: moved {moved} > {reach}"
+            );
+        }
+        // The continuous tracker holds the last estimate exactly.
+        if method == Method::ContinuousTemporal {
+            assert!(DROPPED.clone().all(|k| estimates[k].pose == Some(last)));
+        }
+    }
 }

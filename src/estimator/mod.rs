@@ -13,8 +13,10 @@ mod evidential;
 mod gp;
 mod knn;
 mod particle;
+mod refine;
 pub mod synthetic;
 mod temporal;
+mod velocity;
 
 pub use centre::{Centre, CentreSettings};
 pub use continuous::{

@@ -6,8 +6,10 @@
 //!   map, σᵢ its validation residual and Wᵢ the width of its range over the samples: the small
 //!   uniform share ε (`outlier_share`) is what a practitioner adds so that one wild feature
 //!   cannot wipe out every particle.
-//! - Motion: each particle moves to a uniform point of the disc of radius `max_speed` × Δt,
-//!   kept inside the sample poses' bounding box.
+//! - Motion: a share `velocity_share` of the particles moves by the velocity of the line
+//!   through the last estimates (`temporal.velocity_frames`), then every particle moves to a
+//!   uniform point of the disc of radius `max_speed` × Δt, kept inside the sample poses'
+//!   bounding box.
 //! - Systematic resampling when the effective sample size falls below half the particles.
 //! - Estimate: the weighted mean; uncertainty: the radius holding 90 % of the weight; a frame
 //!   without a usable feature is the prediction (`predicted`).
@@ -21,6 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::centre::{corrupted, frame_values, load_file, parse_file, write_file};
+use super::velocity::VelocityLine;
 use super::{
     Continuous, ContinuousSettings, EstimateFlags, EstimatorError, MotionTracker, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,
@@ -38,6 +41,11 @@ pub struct ParticleSettings {
     pub outlier_share: f64,
     /// Mixed with the training seed.
     pub seed: u64,
+    /// Share of the particles moved by the velocity line at each frame; the others keep their
+    /// position (before the reach). Half by default: the filter has no conflict check to keep
+    /// occluded frames out of the line, and followed by every particle a wrong line loses the
+    /// pose (README, "Tracking over time").
+    pub velocity_share: f64,
 }
 
 impl Default for ParticleSettings {
@@ -46,6 +54,7 @@ impl Default for ParticleSettings {
             particles: 2000,
             outlier_share: 0.05,
             seed: 0,
+            velocity_share: 0.5,
         }
     }
 }
@@ -60,6 +69,9 @@ impl ParticleSettings {
             .map_err(|e| EstimatorError::Training(format!("`particle_filter.particles`: {e}")))?;
         within(self.outlier_share, 0.0..=1.0).map_err(|e| {
             EstimatorError::Training(format!("`particle_filter.outlier_share`: {e}"))
+        })?;
+        within(self.velocity_share, 0.0..=1.0).map_err(|e| {
+            EstimatorError::Training(format!("`particle_filter.velocity_share`: {e}"))
         })?;
         Ok(())
     }
@@ -81,6 +93,8 @@ struct ParticleFile {
     settings: ParticleSettings,
     /// The motion model's reach per second (mm/s), `temporal.max_speed`.
     max_speed: f64,
+    /// The estimates the velocity line is fitted through, `temporal.velocity_frames`.
+    velocity_frames: usize,
     /// The seed every motion starts from.
     seed: u64,
     /// The continuous tracker's model file text: the feature maps and noise scales.
@@ -89,7 +103,7 @@ struct ParticleFile {
 
 impl ParticleFilter {
     /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub const FORMAT_VERSION: u32 = 2;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "particle_filter";
 
@@ -128,6 +142,7 @@ impl ParticleFilter {
             method: Self::METHOD.into(),
             settings: settings.clone(),
             max_speed: motion.max_speed,
+            velocity_frames: motion.velocity_frames,
             seed: crate::seed::derive(seed, &format!("particle_filter/{}", settings.seed)),
             feature_maps: maps.to_json()?,
         };
@@ -227,6 +242,7 @@ impl PoseEstimator for ParticleFilter {
             particles,
             weights: vec![1.0 / n as f64; n],
             last: None,
+            line: VelocityLine::new(self.file.velocity_frames),
         })
     }
 }
@@ -239,11 +255,14 @@ struct FilterMotion<'a> {
     /// Normalised.
     weights: Vec<f64>,
     last: Option<f64>,
+    /// The line through the last measured estimates.
+    line: VelocityLine,
 }
 
 impl FilterMotion<'_> {
-    fn predict(&mut self, reach: f64) {
-        if reach <= 0.0 {
+    /// Moves every particle by `shift`, then to a uniform point of the disc of radius `reach`.
+    fn predict(&mut self, reach: f64, shift: [f64; 2]) {
+        if reach <= 0.0 && shift == [0.0; 2] {
             return;
         }
         let (lo, hi) = self.filter.maps.sample_bounds();
@@ -251,8 +270,10 @@ impl FilterMotion<'_> {
             // Uniform in the disc: radius ∝ √u.
             let r = reach * self.rng.random::<f64>().sqrt();
             let angle = std::f64::consts::TAU * self.rng.random::<f64>();
-            p[0] = (p[0] + r * angle.cos()).clamp(lo[0], hi[0]);
-            p[1] = (p[1] + r * angle.sin()).clamp(lo[1], hi[1]);
+            let moves = self.rng.random::<f64>() < self.filter.file.settings.velocity_share;
+            let s = if moves { shift } else { [0.0; 2] };
+            p[0] = (p[0] + s[0] + r * angle.cos()).clamp(lo[0], hi[0]);
+            p[1] = (p[1] + s[1] + r * angle.sin()).clamp(lo[1], hi[1]);
         }
     }
 
@@ -344,12 +365,15 @@ impl MotionTracker for FilterMotion<'_> {
             .map(|(i, v)| v.filter(|_| scales[i] > 0.0))
             .collect();
         if let Some(last) = self.last {
-            self.predict(self.filter.file.max_speed * (time - last).max(0.0));
+            let interval = (time - last).max(0.0);
+            let shift = self.line.shift(interval);
+            self.predict(self.filter.file.max_speed * interval, shift);
         }
         self.last = Some(time);
         let usable = values.iter().any(Option::is_some);
         let score = if usable { self.update(&values) } else { None };
         let (pose, radius) = self.estimate();
+        self.line.remember(time, score.map(|_| pose), false);
         self.resample_if_degenerate();
         Ok(PoseEstimate {
             pose: Some(pose),
@@ -364,5 +388,32 @@ impl MotionTracker for FilterMotion<'_> {
                 ..EstimateFlags::default()
             },
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_are_checked() {
+        let bad = |s: ParticleSettings| s.check().unwrap_err().to_string();
+        let default = ParticleSettings::default;
+        assert!(bad(ParticleSettings {
+            particles: 0,
+            ..default()
+        })
+        .contains("particle_filter.particles"));
+        assert!(bad(ParticleSettings {
+            outlier_share: 1.5,
+            ..default()
+        })
+        .contains("particle_filter.outlier_share"));
+        assert!(bad(ParticleSettings {
+            velocity_share: -0.1,
+            ..default()
+        })
+        .contains("particle_filter.velocity_share"));
+        assert!(default().check().is_ok());
     }
 }

@@ -23,6 +23,8 @@ use serde::{Deserialize, Serialize};
 
 use super::centre::{corrupted, load_file, parse_file, write_file};
 use super::evidential::pose_estimate;
+use super::refine::Refinement;
+use super::velocity::VelocityLine;
 use super::{
     EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
     TrainingSet,
@@ -31,7 +33,7 @@ use crate::features::FeatureConfig;
 use crate::model::EvidentialModel;
 use crate::range::within;
 use crate::report::distance;
-use crate::track::SelectionPolicy;
+use crate::track::{Estimator, SelectionPolicy};
 
 /// The motion model and the reliability of the carried belief (`[temporal]` in scenarios).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -53,6 +55,13 @@ pub struct TemporalSettings {
     /// past. 1 counts it exactly as a feature.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub past_weight: Option<f64>,
+    /// How many of the last estimates the velocity prediction is fitted through (a
+    /// least-squares line); below 2 the estimates stay on the sample poses' weights.
+    pub velocity_frames: usize,
+    /// Spread σ (mm) of the velocity prediction's consonant belief on the refined sample poses
+    /// ([`super::refine`]); `None`: half the sample poses' typical spacing.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub velocity_spread: Option<f64>,
 }
 
 /// The reliabilities tried when learning α.
@@ -70,6 +79,8 @@ impl Default for TemporalSettings {
             max_speed: 80.0,
             reliability: None,
             past_weight: None,
+            velocity_frames: 3,
+            velocity_spread: None,
         }
     }
 }
@@ -105,6 +116,14 @@ impl TemporalSettings {
                 )));
             }
         }
+        if let Some(spread) = self.velocity_spread {
+            if !(spread.is_finite() && spread > 0.0) {
+                return Err(EstimatorError::Training(format!(
+                    "`temporal.velocity_spread` is {spread}: give the spread of the velocity \
+                     prediction in mm (> 0), or leave it out for half the sample spacing"
+                )));
+            }
+        }
         Ok(())
     }
 }
@@ -115,6 +134,9 @@ impl TemporalSettings {
 pub struct TemporalEvidential {
     inner: Evidential,
     file: TemporalFile,
+    /// The sample poses refined for the velocity prediction (`None` without two distinct
+    /// poses: the estimates stay on the samples' weights).
+    refinement: Option<Refinement>,
 }
 
 /// The model file: the settings, the reliability used and the paper tracker's own model file.
@@ -132,7 +154,7 @@ struct TemporalFile {
 
 impl TemporalEvidential {
     /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub const FORMAT_VERSION: u32 = 2;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "evidential_temporal";
 
@@ -181,7 +203,16 @@ impl TemporalEvidential {
             reliability_learned,
             evidential_model: inner.to_json()?,
         };
-        Ok(Self { inner, file })
+        Ok(Self::assemble(inner, file))
+    }
+
+    fn assemble(inner: Evidential, file: TemporalFile) -> Self {
+        let refinement = Refinement::new(inner.tracker().model().poses());
+        Self {
+            inner,
+            file,
+            refinement,
+        }
     }
 
     /// The settings it was fitted with.
@@ -217,7 +248,7 @@ impl TemporalEvidential {
                 "evidential_model: the splitting policy is not taken with the past",
             ));
         }
-        Ok(Self { inner, file })
+        Ok(Self::assemble(inner, file))
     }
 
     /// Reads a model file.
@@ -255,6 +286,7 @@ impl PoseEstimator for TemporalEvidential {
         Box::new(EvidentialMotion {
             estimator: self,
             past: None,
+            line: VelocityLine::new(self.file.settings.velocity_frames),
         })
     }
 }
@@ -264,6 +296,26 @@ struct EvidentialMotion<'a> {
     estimator: &'a TemporalEvidential,
     /// The last frame's time and the contour carried from it (max 1, before moving).
     past: Option<(f64, Vec<f64>)>,
+    /// The line through the last estimates of frames whose own features outweighed the past.
+    line: VelocityLine,
+}
+
+impl EvidentialMotion<'_> {
+    /// The estimate of `weights` over the sample poses refined with the velocity prediction
+    /// at `time`; `None` when there is no prediction (fewer than two estimates since the last
+    /// restart) or no refinement.
+    fn refined(&self, time: f64, weights: &[f64]) -> Option<[f64; 2]> {
+        let refinement = self.estimator.refinement.as_ref()?;
+        let predicted = self.line.predict(time)?;
+        let spread = self
+            .estimator
+            .file
+            .settings
+            .velocity_spread
+            .unwrap_or(0.5 * refinement.spacing());
+        let map = self.estimator.inner.tracker().settings().estimator == Estimator::Map;
+        refinement.estimate(weights, predicted, spread, map)
+    }
 }
 
 impl MotionTracker for EvidentialMotion<'_> {
@@ -277,10 +329,14 @@ impl MotionTracker for EvidentialMotion<'_> {
         let Some((last, contour)) = self.past.take() else {
             let frame = inner.track(features)?;
             self.past = scaled_to_max(&frame.plausibility).map(|c| (time, c));
-            return Ok(pose_estimate(frame));
+            let estimate = pose_estimate(frame);
+            self.line.remember(time, estimate.pose, true);
+            return Ok(estimate);
         };
-        let reach = self.estimator.file.settings.max_speed * (time - last).max(0.0);
-        let moved = dilate(tracker.model().poses(), &contour, reach);
+        let interval = (time - last).max(0.0);
+        let reach = self.estimator.file.settings.max_speed * interval;
+        let shift = self.line.shift(interval);
+        let moved = dilate(tracker.model().poses(), &contour, reach, shift);
         let alpha = self.estimator.file.reliability;
         let carried: Vec<f64> = moved.iter().map(|&m| 1.0 - alpha + alpha * m).collect();
         let likelihoods = inner.model().frames().likelihoods(features)?;
@@ -292,6 +348,16 @@ impl MotionTracker for EvidentialMotion<'_> {
             estimate.flags.past_rejected = !outcome.past_joined;
             // The past outweighed every feature: the estimate is the prediction.
             estimate.flags.predicted = outcome.past_joined && outcome.frame.group.is_empty();
+            if outcome.past_joined {
+                if let Some(pose) = self.refined(time, &outcome.frame.plausibility) {
+                    estimate.pose = Some(pose);
+                }
+            }
+            // A prediction is not a measurement: the line keeps to measured frames.
+            let measured = estimate
+                .pose
+                .filter(|_| !estimate.flags.predicted && outcome.frame.group.len() as f64 > weight);
+            self.line.remember(time, measured, !outcome.past_joined);
             self.past = scaled_to_max(&outcome.frame.plausibility).map(|c| (time, c));
             // Nothing to carry (not expected with an estimate): keep the moved past.
             if self.past.is_none() {
@@ -303,7 +369,7 @@ impl MotionTracker for EvidentialMotion<'_> {
         let total: f64 = moved.iter().sum();
         let weights: Vec<f64> = moved.iter().map(|m| m / total).collect();
         if let Some((pose, uncertainty)) = tracker.estimate_with_weights(&weights) {
-            estimate.pose = Some(pose);
+            estimate.pose = Some(self.refined(time, &weights).unwrap_or(pose));
             estimate.uncertainty_radius = Some(uncertainty.radius);
             estimate.flags.predicted = true;
             estimate.flags.combination_failed = false;
@@ -368,19 +434,21 @@ fn scaled_to_max(contour: &[f64]) -> Option<Vec<f64>> {
     (max > 0.0 && max.is_finite()).then(|| contour.iter().map(|c| c / max).collect())
 }
 
-/// π′(p) = max {π(q) : |q − p| ≤ reach} over the poses.
-pub(super) fn dilate(poses: &[[f64; 2]], contour: &[f64], reach: f64) -> Vec<f64> {
-    if reach <= 0.0 {
+/// π′(p) = max {π(q) : |q + shift − p| ≤ reach} over the poses: each pose moved by `shift` and
+/// spread over `reach`.
+fn dilate(poses: &[[f64; 2]], contour: &[f64], reach: f64, shift: [f64; 2]) -> Vec<f64> {
+    if reach <= 0.0 && shift == [0.0; 2] {
         return contour.to_vec();
     }
     let r2 = reach * reach;
     poses
         .iter()
         .map(|p| {
+            let target = [p[0] - shift[0], p[1] - shift[1]];
             poses
                 .iter()
                 .zip(contour)
-                .filter(|(q, _)| (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) <= r2)
+                .filter(|(q, _)| (q[0] - target[0]).powi(2) + (q[1] - target[1]).powi(2) <= r2)
                 .map(|(_, &c)| c)
                 .fold(0.0f64, f64::max)
         })
@@ -395,10 +463,22 @@ mod tests {
     fn dilation_spreads_each_value_over_its_reach() {
         let poses = [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.5, 0.0]];
         let contour = [0.0, 1.0, 0.2, 0.0];
-        assert_eq!(dilate(&poses, &contour, 0.0), contour.to_vec());
-        assert_eq!(dilate(&poses, &contour, 1.5), vec![1.0, 1.0, 1.0, 0.2]);
-        assert_eq!(dilate(&poses, &contour, 1.4), vec![1.0, 1.0, 1.0, 0.0]);
-        assert_eq!(dilate(&poses, &contour, 10.0), vec![1.0; 4]);
+        let still = [0.0; 2];
+        assert_eq!(dilate(&poses, &contour, 0.0, still), contour.to_vec());
+        assert_eq!(
+            dilate(&poses, &contour, 1.5, still),
+            vec![1.0, 1.0, 1.0, 0.2]
+        );
+        assert_eq!(
+            dilate(&poses, &contour, 1.4, still),
+            vec![1.0, 1.0, 1.0, 0.0]
+        );
+        assert_eq!(dilate(&poses, &contour, 10.0, still), vec![1.0; 4]);
+        // Moved by +1 first: pose 1's value lands on pose 2, pose 2's at 3 (reach 0.5 of 3.5).
+        assert_eq!(
+            dilate(&poses, &contour, 0.6, [1.0, 0.0]),
+            vec![0.0, 0.0, 1.0, 0.2]
+        );
     }
 
     #[test]
@@ -414,6 +494,11 @@ mod tests {
             ..TemporalSettings::default()
         })
         .contains("temporal.reliability"));
+        assert!(bad(TemporalSettings {
+            velocity_spread: Some(0.0),
+            ..TemporalSettings::default()
+        })
+        .contains("temporal.velocity_spread"));
         assert!(TemporalSettings::default().check().is_ok());
     }
 }

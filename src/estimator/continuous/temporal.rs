@@ -2,14 +2,15 @@
 //! [`crate::estimator::TemporalEvidential`] in the continuous tracker's terms.
 //!
 //! - The carried belief is consonant: a flat top of radius `max_speed` × Δt around the last
-//!   estimate, falling off as a Gaussian of the last fit's broadest spread (1/√ of the smallest
+//!   estimate moved by the velocity of the line through the last estimates
+//!   ([`crate::estimator::TemporalSettings::velocity_frames`]), falling off as a Gaussian of the last fit's broadest spread (1/√ of the smallest
 //!   eigenvalue of its curvature), discounted by α: its χ² term is −2 ln c(q)
 //!   ([`super::frame::PastTerm`]), one more term of a group's χ² and bit `features` of its mask.
 //! - The frame's own choice (the paper's selection on its features) competes with the past plus
 //!   the largest group of features it can be combined with below the threshold, the past counting
 //!   as `past_weight` features, as in the discrete tracker.
 //! - A frame without a usable feature, or one the past outweighs entirely, gets the prediction
-//!   (`predicted`): the last estimate, with the reach growing until a frame is usable.
+//!   (`predicted`): the carried belief's centre, with the reach growing until a frame is usable.
 
 use std::path::Path;
 
@@ -19,6 +20,7 @@ use super::frame::{members, Frame, PastTerm};
 use super::Continuous;
 use crate::estimator::centre::{corrupted, frame_values, load_file, parse_file, write_file};
 use crate::estimator::temporal::{learned_reliability, validation_error, DEFAULT_RELIABILITY};
+use crate::estimator::velocity::VelocityLine;
 use crate::estimator::{
     ContinuousSettings, EstimatorError, MotionTracker, PlausibilityRegion, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,
@@ -48,7 +50,7 @@ struct ContinuousTemporalFile {
 
 impl ContinuousTemporal {
     /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub const FORMAT_VERSION: u32 = 2;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "continuous_temporal";
 
@@ -150,6 +152,7 @@ impl PoseEstimator for ContinuousTemporal {
         Box::new(ContinuousMotion {
             estimator: self,
             past: None,
+            line: VelocityLine::new(self.file.settings.velocity_frames),
         })
     }
 }
@@ -165,6 +168,8 @@ struct Last {
 struct ContinuousMotion<'a> {
     estimator: &'a ContinuousTemporal,
     past: Option<Last>,
+    /// The line through the last estimates of frames whose own features outweighed the past.
+    line: VelocityLine,
 }
 
 /// 1/√ of the smallest eigenvalue of a curvature (mm), kept within [1 µm, 19 mm].
@@ -200,13 +205,15 @@ impl MotionTracker for ContinuousMotion<'_> {
                     .fold(0, |m: GroupMask, &i| m | 1 << i);
                 let scale = broadest_spread(frame.fit(group).curvature);
                 self.past = Some(Last { time, pose, scale });
+                self.line.remember(time, Some(pose), true);
             }
             return Ok(estimate);
         };
         let settings = &self.estimator.file.settings;
         let (values, missing) = frame_values(features, model.file.feature_names.len())?;
+        let shift = self.line.shift(time - last.time);
         let past = PastTerm {
-            centre: last.pose,
+            centre: [last.pose[0] + shift[0], last.pose[1] + shift[1]],
             reach: settings.max_speed * (time - last.time).max(0.0),
             scale: last.scale,
             reliability: self.estimator.file.reliability,
@@ -214,7 +221,7 @@ impl MotionTracker for ContinuousMotion<'_> {
         let mut frame = Frame::new(model, model.usable(values)).with_past(past);
         let usable = frame.usable_mask;
         let predicted = |missing: Vec<usize>, excluded: Vec<usize>| PoseEstimate {
-            pose: Some(last.pose),
+            pose: Some(past.centre),
             uncertainty_radius: Some(past.reach + last.scale),
             group: Some(Vec::new()),
             conflict_level: None,
@@ -280,6 +287,9 @@ impl MotionTracker for ContinuousMotion<'_> {
             pose: fit.pose,
             scale,
         });
+        let measured = past_joins && features_only.count_ones() as f64 > weight;
+        self.line
+            .remember(time, measured.then_some(fit.pose), !past_joins);
         Ok(PoseEstimate {
             pose: Some(fit.pose),
             uncertainty_radius: region.as_ref().map(|r| r.semi_major),

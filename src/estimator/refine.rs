@@ -1,0 +1,251 @@
+//! The sample poses refined onto a sub-grid (issue 17), so that a velocity prediction can place
+//! an estimate between them.
+//!
+//! Each sample pose stands for the poses nearer to it than to any other sample, within
+//! √2/2 × the largest nearest-neighbour distance (a square mesh's cells exactly), capped at
+//! [`MAX_REACH_IN_SPACINGS`] typical spacings. A belief over the sample poses extends vacuously
+//! onto the points of a sub-grid of [`SUBDIVISIONS`] per typical spacing. Combined by Dempster's
+//! rule with a consonant belief whose contour is exp(−|x − x̂|²/2σ²) around a predicted pose x̂,
+//! its relative plausibility at a point x of sample s is w(s)·exp(−|x − x̂|²/2σ²): the estimate
+//! never leaves the poses the sample weights allow, and a prediction far from them only pulls
+//! the estimate to their nearest edge.
+
+/// Sub-grid points per typical spacing (the median nearest-neighbour distance).
+pub const SUBDIVISIONS: f64 = 16.0;
+
+/// The largest region radius, in typical spacings (an isolated sample does not get a huge cell).
+pub const MAX_REACH_IN_SPACINGS: f64 = 4.0;
+
+/// Samples whose weight is below this share of the largest are left out (their points could not
+/// move a weighted mean by more than this relative amount).
+const NEGLIGIBLE_WEIGHT: f64 = 1e-12;
+
+/// The refinement of a set of sample poses.
+#[derive(Debug, Clone)]
+pub struct Refinement {
+    /// Median distance from a sample to its nearest distinct neighbour.
+    spacing: f64,
+    /// The sub-grid points, sample by sample.
+    points: Vec<[f64; 2]>,
+    /// Sample s owns `points[start[s]..start[s + 1]]`.
+    start: Vec<usize>,
+}
+
+impl Refinement {
+    /// Refines `poses`; `None` without two distinct finite poses.
+    pub fn new(poses: &[[f64; 2]]) -> Option<Self> {
+        if poses
+            .iter()
+            .any(|p| !(p[0].is_finite() && p[1].is_finite()))
+        {
+            return None;
+        }
+        let mut nearest: Vec<f64> = poses
+            .iter()
+            .map(|p| {
+                poses
+                    .iter()
+                    .map(|q| (p[0] - q[0]).hypot(p[1] - q[1]))
+                    .filter(|&d| d > 1e-9)
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .filter(|d| d.is_finite())
+            .collect();
+        if nearest.is_empty() {
+            return None;
+        }
+        nearest.sort_by(f64::total_cmp);
+        let spacing = nearest[nearest.len() / 2];
+        let widest = nearest[nearest.len() - 1];
+        let reach = (widest * std::f64::consts::FRAC_1_SQRT_2).min(MAX_REACH_IN_SPACINGS * spacing);
+        let step = spacing / SUBDIVISIONS;
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in poses {
+            for d in 0..2 {
+                lo[d] = lo[d].min(p[d] - reach);
+                hi[d] = hi[d].max(p[d] + reach);
+            }
+        }
+        // The lattice is anchored on the first sample, half a step off it, so that a square
+        // mesh's cell borders fall between points.
+        for d in 0..2 {
+            lo[d] = poses[0][d] - ((poses[0][d] - lo[d]) / step).ceil() * step;
+        }
+        let size = |d: usize| ((hi[d] - lo[d]) / step).ceil() as usize + 1;
+        let (nx, ny) = (size(0), size(1));
+        let at = |i: usize, j: usize| {
+            [
+                lo[0] + (i as f64 + 0.5) * step,
+                lo[1] + (j as f64 + 0.5) * step,
+            ]
+        };
+        // Each point goes to its nearest sample within the reach (ties: the lower index).
+        let mut owner: Vec<(u32, f64)> = vec![(u32::MAX, f64::INFINITY); nx * ny];
+        let span = (reach / step).ceil() as isize + 1;
+        for (s, p) in poses.iter().enumerate() {
+            let (ci, cj) = (
+                ((p[0] - lo[0]) / step) as isize,
+                ((p[1] - lo[1]) / step) as isize,
+            );
+            for j in (cj - span).max(0)..(cj + span + 1).min(ny as isize) {
+                for i in (ci - span).max(0)..(ci + span + 1).min(nx as isize) {
+                    let x = at(i as usize, j as usize);
+                    let d2 = (x[0] - p[0]).powi(2) + (x[1] - p[1]).powi(2);
+                    let cell = &mut owner[j as usize * nx + i as usize];
+                    if d2 <= reach * reach && d2 < cell.1 {
+                        *cell = (s as u32, d2);
+                    }
+                }
+            }
+        }
+        let mut count = vec![0usize; poses.len() + 1];
+        for &(s, _) in &owner {
+            if s != u32::MAX {
+                count[s as usize + 1] += 1;
+            }
+        }
+        for s in 0..poses.len() {
+            count[s + 1] += count[s];
+        }
+        let start = count.clone();
+        let mut points = vec![[0.0; 2]; start[poses.len()]];
+        let mut next = count;
+        for (k, &(s, _)) in owner.iter().enumerate() {
+            if s != u32::MAX {
+                points[next[s as usize]] = at(k % nx, k / nx);
+                next[s as usize] += 1;
+            }
+        }
+        Some(Self {
+            spacing,
+            points,
+            start,
+        })
+    }
+
+    /// The median distance between a sample pose and its nearest neighbour.
+    pub fn spacing(&self) -> f64 {
+        self.spacing
+    }
+
+    /// The estimate of `weights` over the sample poses combined with a consonant belief of
+    /// contour exp(−|x − predicted|²/2σ²), σ = `spread`, on the sub-grid: the weighted mean, or
+    /// with `map` the point of highest plausibility (ties: the first). `None` when the weights
+    /// do not fit the samples or are nowhere positive.
+    pub fn estimate(
+        &self,
+        weights: &[f64],
+        predicted: [f64; 2],
+        spread: f64,
+        map: bool,
+    ) -> Option<[f64; 2]> {
+        if weights.len() + 1 != self.start.len() || !(spread.is_finite() && spread > 0.0) {
+            return None;
+        }
+        let max = weights.iter().copied().fold(0.0f64, f64::max);
+        if !(max > 0.0 && max.is_finite()) {
+            return None;
+        }
+        let scale = -0.5 / (spread * spread);
+        // ln of each point's plausibility, relative to the largest weight.
+        let log_plausibilities = || {
+            weights
+                .iter()
+                .enumerate()
+                .filter(move |(_, &w)| w >= max * NEGLIGIBLE_WEIGHT)
+                .flat_map(move |(s, &w)| {
+                    let lw = (w / max).ln();
+                    self.points[self.start[s]..self.start[s + 1]]
+                        .iter()
+                        .map(move |x| {
+                            let d2 = (x[0] - predicted[0]).powi(2) + (x[1] - predicted[1]).powi(2);
+                            (*x, lw + scale * d2)
+                        })
+                })
+        };
+        let (best, top) =
+            log_plausibilities().fold((None, f64::NEG_INFINITY), |(best, top), (x, l)| {
+                if l > top {
+                    (Some(x), l)
+                } else {
+                    (best, top)
+                }
+            });
+        if map {
+            return best;
+        }
+        let (mut sx, mut sy, mut sw) = (0.0, 0.0, 0.0);
+        for (x, l) in log_plausibilities() {
+            let w = (l - top).exp();
+            sx += w * x[0];
+            sy += w * x[1];
+            sw += w;
+        }
+        (sw > 0.0).then(|| [sx / sw, sy / sw])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mesh() -> Vec<[f64; 2]> {
+        (0..4)
+            .flat_map(|j| (0..4).map(move |i| [i as f64, j as f64]))
+            .collect()
+    }
+
+    #[test]
+    fn a_square_mesh_refines_into_its_cells() {
+        let r = Refinement::new(&mesh()).unwrap();
+        assert_eq!(r.spacing(), 1.0);
+        // An inner sample owns the unit square around it: 16 × 16 points.
+        let s = 5; // pose [1, 1]
+        let own = &r.points[r.start[s]..r.start[s + 1]];
+        assert_eq!(own.len(), 256);
+        assert!(own
+            .iter()
+            .all(|x| (x[0] - 1.0).abs() < 0.5 && (x[1] - 1.0).abs() < 0.5));
+        // A belief on that sample alone, with a prediction at its centre, estimates the centre;
+        // a prediction beside it moves the estimate towards it, inside the cell.
+        let mut w = vec![0.0; 16];
+        w[s] = 1.0;
+        let centre = r.estimate(&w, [1.0, 1.0], 0.5, false).unwrap();
+        assert!((centre[0] - 1.0).abs() < 1e-9 && (centre[1] - 1.0).abs() < 1e-9);
+        let pulled = r.estimate(&w, [1.4, 1.0], 0.3, false).unwrap();
+        assert!(pulled[0] > 1.1 && pulled[0] < 1.5, "{pulled:?}");
+        assert!((pulled[1] - 1.0).abs() < 1e-9);
+        // Far away, it stops at the cell's edge; MAP takes the nearest point.
+        let far = r.estimate(&w, [9.0, 1.0], 0.3, true).unwrap();
+        assert!((far[0] - (1.5 - 1.0 / 32.0)).abs() < 1e-9, "{far:?}");
+        let far_mean = r.estimate(&w, [9.0, 1.0], 0.3, false).unwrap();
+        assert!(far_mean[0] > 1.45 && far_mean[0] < 1.5, "{far_mean:?}");
+    }
+
+    #[test]
+    fn a_broad_prediction_gives_the_weighted_mean_of_the_cells() {
+        let r = Refinement::new(&mesh()).unwrap();
+        let mut w = vec![0.0; 16];
+        w[5] = 1.0;
+        w[6] = 1.0; // [2, 1]
+        let e = r.estimate(&w, [1.5, 1.0], 1e6, false).unwrap();
+        assert!(
+            (e[0] - 1.5).abs() < 1e-9 && (e[1] - 1.0).abs() < 1e-9,
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn bad_inputs_give_none() {
+        assert!(Refinement::new(&[[0.0, 0.0]]).is_none());
+        assert!(Refinement::new(&[[0.0, 0.0], [0.0, 0.0]]).is_none());
+        assert!(Refinement::new(&[[0.0, 0.0], [f64::NAN, 1.0]]).is_none());
+        let r = Refinement::new(&mesh()).unwrap();
+        assert!(r.estimate(&[1.0; 3], [0.0, 0.0], 0.5, false).is_none());
+        assert!(r.estimate(&[0.0; 16], [0.0, 0.0], 0.5, false).is_none());
+        assert!(r.estimate(&[1.0; 16], [0.0, 0.0], 0.0, false).is_none());
+        assert!(r
+            .estimate(&[1.0; 16], [0.0, 0.0], f64::NAN, false)
+            .is_none());
+    }
+}
