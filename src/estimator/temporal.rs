@@ -1,10 +1,11 @@
 //! The temporal evidential tracker (issue 17): the paper's tracker, with the belief of the last
 //! frame carried to the next by a motion model and taking part in its conflict graph.
 //!
-//! - The motion model: a pose reaches every pose within `max_speed` × Δt in a frame interval Δt
-//!   (the frames' own timestamps). The carried belief is consonant; moving it maps each focal
-//!   set onto the poses it can reach, so its contour becomes the dilation
-//!   π′(p) = max {π(q) : |q − p| ≤ max_speed·Δt}.
+//! - The motion model: a pose moves by v·Δt, v the velocity of the line through the last
+//!   estimates ([`VelocityLine`]), then reaches every pose within `max_speed` × Δt in a frame
+//!   interval Δt (the frames' own timestamps). The carried belief is consonant; moving it maps
+//!   each focal set onto the poses it can reach, so its contour becomes the dilation
+//!   π′(p) = max {π(q) : |q + v·Δt − p| ≤ max_speed·Δt}.
 //! - Discounting by the reliability α (fixed, or learned on the validation motion): the carried
 //!   contour is c = 1 − α + α·π′, so the past can never be in total conflict with a frame.
 //! - The frame's features and the carried belief form one conflict graph
@@ -16,6 +17,10 @@
 //! - A frame without a usable feature gets the prediction: the estimate of π′ alone
 //!   (`predicted`), and π′ is carried on, so the reach keeps growing until a frame is usable.
 //!   A frame whose features are all outweighed by the past is flagged `predicted` too.
+//! - Between the sample poses: on a frame the past joins (and on a prediction), the weights over
+//!   the sample poses are combined with the line's predicted pose on the refined poses
+//!   ([`Refinement`], spread `velocity_spread`), so the estimate can fall between samples. The
+//!   uncertainty radius stays that of the sample weights.
 
 use std::path::Path;
 
@@ -329,8 +334,10 @@ impl MotionTracker for EvidentialMotion<'_> {
         let Some((last, contour)) = self.past.take() else {
             let frame = inner.track(features)?;
             self.past = scaled_to_max(&frame.plausibility).map(|c| (time, c));
+            let own = frame.group.len();
             let estimate = pose_estimate(frame);
-            self.line.remember(time, estimate.pose, true);
+            let weight = self.estimator.file.settings.past_weight_for(features.len());
+            self.line.feed(time, estimate.pose, own, weight, false);
             return Ok(estimate);
         };
         let interval = (time - last).max(0.0);
@@ -353,11 +360,9 @@ impl MotionTracker for EvidentialMotion<'_> {
                     estimate.pose = Some(pose);
                 }
             }
-            // A prediction is not a measurement: the line keeps to measured frames.
-            let measured = estimate
-                .pose
-                .filter(|_| !estimate.flags.predicted && outcome.frame.group.len() as f64 > weight);
-            self.line.remember(time, measured, !outcome.past_joined);
+            let own = outcome.frame.group.len();
+            self.line
+                .feed(time, estimate.pose, own, weight, outcome.past_joined);
             self.past = scaled_to_max(&outcome.frame.plausibility).map(|c| (time, c));
             // Nothing to carry (not expected with an estimate): keep the moved past.
             if self.past.is_none() {

@@ -34,6 +34,22 @@ impl VelocityLine {
         }
     }
 
+    /// Feeds a temporal tracker's frame at `time`: its estimate joins the line when more than
+    /// `past_weight` of the frame's own features are in the chosen group (a frame the past
+    /// outweighs, as in an occlusion burst, would bend the line); a frame that did not combine
+    /// the past restarts the line.
+    pub fn feed(
+        &mut self,
+        time: f64,
+        pose: Option<[f64; 2]>,
+        own_features: usize,
+        past_weight: f64,
+        past_joined: bool,
+    ) {
+        let measured = pose.filter(|_| own_features as f64 > past_weight);
+        self.remember(time, measured, !past_joined);
+    }
+
     /// The line's velocity (mm/s); `None` without two estimates at distinct times.
     pub fn velocity(&self) -> Option<[f64; 2]> {
         line(&self.history).map(|(_, _, slope)| slope)
@@ -118,5 +134,20 @@ mod tests {
         still.remember(0.0, Some([0.0, 0.0]), false);
         still.remember(1.0, Some([1.0, 0.0]), false);
         assert_eq!(still.velocity(), None);
+    }
+
+    #[test]
+    fn only_frames_whose_own_features_outweigh_the_past_feed_the_line() {
+        let mut line = VelocityLine::new(3);
+        line.feed(0.0, Some([0.0, 0.0]), 8, 4.0, false);
+        line.feed(1.0, Some([1.0, 0.0]), 5, 4.0, true);
+        // Four features beside a past worth four: left out, the line stays.
+        line.feed(2.0, Some([9.0, 9.0]), 4, 4.0, true);
+        assert_eq!(line.predict(2.0), Some([2.0, 0.0]));
+        // A frame that dropped the past restarts the line with its own estimate.
+        line.feed(3.0, Some([5.0, 5.0]), 6, 4.0, false);
+        assert_eq!(line.velocity(), None);
+        line.feed(4.0, Some([6.0, 5.0]), 6, 4.0, true);
+        assert_eq!(line.velocity(), Some([1.0, 0.0]));
     }
 }

@@ -205,7 +205,9 @@ impl MotionTracker for ContinuousMotion<'_> {
                     .fold(0, |m: GroupMask, &i| m | 1 << i);
                 let scale = broadest_spread(frame.fit(group).curvature);
                 self.past = Some(Last { time, pose, scale });
-                self.line.remember(time, Some(pose), true);
+                let own = estimate.group.as_ref().map_or(0, Vec::len);
+                let weight = self.estimator.file.settings.past_weight_for(features.len());
+                self.line.feed(time, Some(pose), own, weight, false);
             }
             return Ok(estimate);
         };
@@ -287,9 +289,9 @@ impl MotionTracker for ContinuousMotion<'_> {
             pose: fit.pose,
             scale,
         });
-        let measured = past_joins && features_only.count_ones() as f64 > weight;
+        let own = features_only.count_ones() as usize;
         self.line
-            .remember(time, measured.then_some(fit.pose), !past_joins);
+            .feed(time, Some(fit.pose), own, weight, past_joins);
         Ok(PoseEstimate {
             pose: Some(fit.pose),
             uncertainty_radius: region.as_ref().map(|r| r.semi_major),
