@@ -13,6 +13,10 @@
 /// Sub-grid points per typical spacing (the median nearest-neighbour distance).
 pub const SUBDIVISIONS: f64 = 16.0;
 
+/// At most this many sub-grid points: sample poses much closer together than their extent get a
+/// coarser sub-grid rather than an unbounded one.
+pub const MAX_POINTS: f64 = 4e6;
+
 /// The largest region radius, in typical spacings (an isolated sample does not get a huge cell).
 pub const MAX_REACH_IN_SPACINGS: f64 = 4.0;
 
@@ -58,7 +62,6 @@ impl Refinement {
         let spacing = nearest[nearest.len() / 2];
         let widest = nearest[nearest.len() - 1];
         let reach = (widest * std::f64::consts::FRAC_1_SQRT_2).min(MAX_REACH_IN_SPACINGS * spacing);
-        let step = spacing / SUBDIVISIONS;
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for p in poses {
             for d in 0..2 {
@@ -66,6 +69,11 @@ impl Refinement {
                 hi[d] = hi[d].max(p[d] + reach);
             }
         }
+        let area = (hi[0] - lo[0]) * (hi[1] - lo[1]);
+        let step = (spacing / SUBDIVISIONS).max((area / MAX_POINTS).sqrt());
+        // Every sample reaches its nearest lattice point (a sample closer to another than the
+        // step may still own none: its weight is then left out of [`Refinement::estimate`]).
+        let reach = reach.max(step);
         // The lattice is anchored on the first sample, half a step off it, so that a square
         // mesh's cell borders fall between points.
         for d in 0..2 {
@@ -131,7 +139,8 @@ impl Refinement {
     /// The estimate of `weights` over the sample poses combined with a consonant belief of
     /// contour exp(−|x − predicted|²/2σ²), σ = `spread`, on the sub-grid: the weighted mean, or
     /// with `map` the point of highest plausibility (ties: the first). `None` when the weights
-    /// do not fit the samples or are nowhere positive.
+    /// do not fit the samples or are nowhere positive on points (the caller keeps the sample
+    /// poses' estimate).
     pub fn estimate(
         &self,
         weights: &[f64],
@@ -163,6 +172,7 @@ impl Refinement {
                         })
                 })
         };
+        // With no point at all, `top` stays −∞ and the estimate is `None`.
         let (best, top) =
             log_plausibilities().fold((None, f64::NEG_INFINITY), |(best, top), (x, l)| {
                 if l > top {
@@ -231,6 +241,20 @@ mod tests {
         let e = r.estimate(&w, [1.5, 1.0], 1e6, false).unwrap();
         assert!(
             (e[0] - 1.5).abs() < 1e-9 && (e[1] - 1.0).abs() < 1e-9,
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn close_samples_far_apart_get_a_bounded_sub_grid() {
+        // Pairs 1 µm apart, 19 mm between pairs: the spacing alone would ask for 10¹² points.
+        let poses = [[0.0, 0.0], [1e-3, 0.0], [19.0, 19.0], [19.0, 19.001]];
+        let r = Refinement::new(&poses).unwrap();
+        assert!(r.points.len() as f64 <= MAX_POINTS, "{}", r.points.len());
+        let e = r.estimate(&[0.0, 0.0, 1.0, 0.0], [19.0, 19.0], 1.0, false);
+        let e = e.unwrap();
+        assert!(
+            (e[0] - 19.0).abs() < 0.1 && (e[1] - 19.0).abs() < 0.1,
             "{e:?}"
         );
     }

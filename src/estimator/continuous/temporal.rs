@@ -3,8 +3,9 @@
 //!
 //! - The carried belief is consonant: a flat top of radius `max_speed` × Δt around the last
 //!   estimate moved by the velocity of the line through the last estimates
-//!   ([`crate::estimator::TemporalSettings::velocity_frames`]), falling off as a Gaussian of the last fit's broadest spread (1/√ of the smallest
-//!   eigenvalue of its curvature), discounted by α: its χ² term is −2 ln c(q)
+//!   ([`crate::estimator::TemporalSettings::velocity_frames`]), falling off as a Gaussian of
+//!   the last fit's broadest spread (1/√ of the smallest eigenvalue of its curvature),
+//!   discounted by α: its χ² term is −2 ln c(q)
 //!   ([`super::frame::PastTerm`]), one more term of a group's χ² and bit `features` of its mask.
 //! - The frame's own choice (the paper's selection on its features) competes with the past plus
 //!   the largest group of features it can be combined with below the threshold, the past counting
