@@ -1,0 +1,92 @@
+//! Tracking over time (issue 17): one frame of a motion through `MotionTracker::next`, for the
+//! paper's tracker (per frame, for reference) and the three temporal methods, on 8 synthetic
+//! features of a 20 × 20 mesh (1 mm) with 24 states each, along a 200-frame Lissajous path at
+//! 20 frames per second; and building the sample poses' refinement (part of fitting or loading
+//! the temporal evidential tracker).
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::{
+    EstimatorSettings, Labelled, Method, PoseEstimator, TemporalEvidential, TrainingSet,
+};
+use evitrack::model::{ModelSettings, StateCounts};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::hint::black_box;
+use std::time::Duration;
+
+const FEATURES: usize = 8;
+const NOISE: f64 = 0.01;
+
+/// The test path: (time, feature row) of a Lissajous figure over the workspace.
+fn path() -> Vec<(f64, Vec<Option<f64>>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    (0..200)
+        .map(|k| {
+            let t = k as f64 / 20.0;
+            let q = [
+                8.0 * (std::f64::consts::TAU * 0.3 * t).sin(),
+                47.5 + 8.0 * (std::f64::consts::TAU * 0.2 * t).sin(),
+            ];
+            (t, feature_row(FEATURES, q, NOISE, &mut rng))
+        })
+        .collect()
+}
+
+fn temporal(c: &mut Criterion) {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let names: Vec<String> = (0..FEATURES).map(|i| format!("f{i}")).collect();
+    let poses = workspace_mesh(20);
+    let rows: Vec<_> = poses
+        .iter()
+        .map(|&q| feature_row(FEATURES, q, NOISE, &mut rng))
+        .collect();
+    let data = TrainingSet::new(
+        &names,
+        Labelled {
+            poses: &poses,
+            rows: &rows,
+        },
+    );
+    let mut settings = EstimatorSettings::default();
+    settings.evidential.model = ModelSettings {
+        states: StateCounts::All(24),
+        ..ModelSettings::default()
+    };
+    settings.temporal.reliability = Some(1.0);
+    let frames = path();
+
+    let mut group = c.benchmark_group("temporal");
+    group.measurement_time(Duration::from_secs(4));
+    for method in [
+        Method::Evidential,
+        Method::EvidentialTemporal,
+        Method::ContinuousTemporal,
+        Method::ParticleFilter,
+    ] {
+        let estimator = method.fit(&settings, &data).expect("fits");
+        group.bench_function(BenchmarkId::new("frame", estimator.method()), |b| {
+            let mut motion = estimator.start_motion();
+            let mut k = 0;
+            b.iter(|| {
+                if k == frames.len() {
+                    motion = estimator.start_motion();
+                    k = 0;
+                }
+                let (t, row) = &frames[k];
+                k += 1;
+                black_box(motion.next(*t, row).expect("tracks"))
+            });
+        });
+        if method == Method::EvidentialTemporal {
+            let text = estimator.to_json().expect("writes");
+            group.bench_function("load evidential_temporal (refines 400 poses)", |b| {
+                b.iter(|| black_box(TemporalEvidential::from_json(&text).expect("loads")));
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, temporal);
+criterion_main!(benches);
