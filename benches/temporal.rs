@@ -6,9 +6,7 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
-use evitrack::estimator::{
-    EstimatorSettings, Labelled, Method, PoseEstimator, TemporalEvidential, TrainingSet,
-};
+use evitrack::estimator::{EstimatorSettings, Labelled, Method, TemporalEvidential, TrainingSet};
 use evitrack::model::{ModelSettings, StateCounts};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
