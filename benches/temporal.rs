@@ -57,10 +57,10 @@ fn temporal(c: &mut Criterion) {
     let mut group = c.benchmark_group("temporal");
     group.measurement_time(Duration::from_secs(4));
     for method in [
-        Method::Evidential,
-        Method::EvidentialTemporal,
-        Method::ContinuousTemporal,
-        Method::ParticleFilter,
+        Method::EVIDENTIAL,
+        Method::EVIDENTIAL_TEMPORAL,
+        Method::CONTINUOUS_TEMPORAL,
+        Method::PARTICLE_FILTER,
     ] {
         let estimator = method.fit(&settings, &data).expect("fits");
         group.bench_function(BenchmarkId::new("frame", estimator.method()), |b| {
@@ -76,7 +76,7 @@ fn temporal(c: &mut Criterion) {
                 black_box(motion.next(*t, row).expect("tracks"))
             });
         });
-        if method == Method::EvidentialTemporal {
+        if method == Method::EVIDENTIAL_TEMPORAL {
             let text = estimator.to_json().expect("writes");
             group.bench_function("load evidential_temporal (refines 400 poses)", |b| {
                 b.iter(|| black_box(TemporalEvidential::from_json(&text).expect("loads")));

@@ -763,7 +763,7 @@ fn a_workbench_shares_fits_between_identical_training_sets_only() {
     let (data, nudged) = (&data, &nudged);
     let settings = EstimatorSettings::default();
     let bench = Workbench::new();
-    for (k, method) in [Method::Gp, Method::Continuous].into_iter().enumerate() {
+    for (k, method) in [Method::GP, Method::CONTINUOUS].into_iter().enumerate() {
         let json = |e: Box<dyn PoseEstimator>| e.to_json().unwrap();
         let first = json(bench.fit(method, &settings, &with(data, "a")).unwrap());
         let second = json(bench.fit(method, &settings, &with(data, "b")).unwrap());
@@ -791,7 +791,7 @@ fn a_workbench_shares_fits_between_identical_training_sets_only() {
         assert_ne!(changed, second);
     }
     // Methods with cheap fits are fitted on every call and never held.
-    let knn = bench.fit(Method::Knn, &settings, &with(data, "a")).unwrap();
+    let knn = bench.fit(Method::KNN, &settings, &with(data, "a")).unwrap();
     assert_eq!(knn.method(), "knn");
     assert_eq!(bench.shared_fits(), 4);
 }

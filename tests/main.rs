@@ -3,6 +3,7 @@
 mod adaptive;
 mod baselines;
 mod cli;
+mod conformance;
 mod continuous;
 mod dataset;
 mod evidence;
@@ -18,4 +19,5 @@ mod reliability;
 mod scheduler;
 mod sim;
 mod temporal;
+mod toy_method;
 mod track;

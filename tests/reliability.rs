@@ -287,7 +287,7 @@ fn model_files_of_every_method_refuse_poses_beyond_their_workspace() {
     };
     data.provenance = Provenance::new(None, 15).with_workspace(Some(workspace));
     let dir = tempfile::tempdir().unwrap();
-    for method in Method::ALL {
+    for method in Method::all() {
         let estimator = method.fit(&EstimatorSettings::default(), &data).unwrap();
         let text = estimator.to_json().unwrap();
         let outer: serde_json::Value = serde_json::from_str(&text).unwrap();

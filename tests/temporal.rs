@@ -191,13 +191,13 @@ fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
     assert!(learned, "learned on the validation motion");
     assert!(evitrack::estimator::RELIABILITY_CANDIDATES.contains(&alpha));
 
-    let estimator = Method::EvidentialTemporal
+    let estimator = Method::EVIDENTIAL_TEMPORAL
         .fit(&settings(Some(0.9)), &data.training())
         .unwrap();
     let (truth, estimates) = run(estimator.as_ref());
     check_predictions("evidential_temporal", &truth, &estimates, 3.0);
     // The per-frame tracker has no estimate where the frames were lost.
-    let per_frame = Method::Evidential
+    let per_frame = Method::EVIDENTIAL
         .fit(&settings(Some(0.9)), &data.training())
         .unwrap();
     let (_, alone) = run(per_frame.as_ref());
@@ -214,7 +214,7 @@ fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
 #[test]
 fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
     let data = Data::new();
-    let estimator = Method::ParticleFilter
+    let estimator = Method::PARTICLE_FILTER
         .fit(&settings(None), &data.training())
         .unwrap();
     let (truth, estimates) = run(estimator.as_ref());
@@ -237,7 +237,7 @@ fn the_continuous_tracker_over_time_predicts_lost_frames_and_round_trips() {
     )
     .unwrap();
     assert!(fitted.reliability().1, "learned on the validation motion");
-    let estimator = Method::ContinuousTemporal
+    let estimator = Method::CONTINUOUS_TEMPORAL
         .fit(&settings(Some(0.9)), &data.training())
         .unwrap();
     let (truth, estimates) = run(estimator.as_ref());
@@ -245,7 +245,7 @@ fn the_continuous_tracker_over_time_predicts_lost_frames_and_round_trips() {
     check_predictions("continuous_temporal", &truth, &estimates, 4.0);
     // On the measured frames it is no worse than the per-frame tracker, which has no estimate
     // where the frames were lost.
-    let per_frame = Method::Continuous
+    let per_frame = Method::CONTINUOUS
         .fit(&settings(Some(0.9)), &data.training())
         .unwrap();
     let (_, alone) = run(per_frame.as_ref());
@@ -274,9 +274,9 @@ fn without_a_velocity_line_predictions_stay_within_reach_of_the_last_estimate() 
     let mut still = settings(Some(0.9));
     still.temporal.velocity_frames = 0;
     for method in [
-        Method::EvidentialTemporal,
-        Method::ContinuousTemporal,
-        Method::ParticleFilter,
+        Method::EVIDENTIAL_TEMPORAL,
+        Method::CONTINUOUS_TEMPORAL,
+        Method::PARTICLE_FILTER,
     ] {
         let estimator = method.fit(&still, &data.training()).unwrap();
         let (_, estimates) = run(estimator.as_ref());
@@ -292,7 +292,7 @@ fn without_a_velocity_line_predictions_stay_within_reach_of_the_last_estimate() 
             );
         }
         // The continuous tracker holds the last estimate exactly.
-        if method == Method::ContinuousTemporal {
+        if method == Method::CONTINUOUS_TEMPORAL {
             assert!(DROPPED.clone().all(|k| estimates[k].pose == Some(last)));
         }
     }

@@ -155,11 +155,11 @@ enum MethodArg {
 impl MethodArg {
     fn method(self) -> Method {
         match self {
-            MethodArg::Evidential => Method::Evidential,
-            MethodArg::Knn => Method::Knn,
-            MethodArg::Gp => Method::Gp,
-            MethodArg::Centre => Method::Centre,
-            MethodArg::Continuous => Method::Continuous,
+            MethodArg::Evidential => Method::EVIDENTIAL,
+            MethodArg::Knn => Method::KNN,
+            MethodArg::Gp => Method::GP,
+            MethodArg::Centre => Method::CENTRE,
+            MethodArg::Continuous => Method::CONTINUOUS,
         }
     }
 }
@@ -444,14 +444,16 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     let loaded = estimator::load(&args.model)
         .with_context(|| format!("loading the model {}", args.model.display()))?;
     let estimator: Box<dyn PoseEstimator> = if args.track.given() {
-        let evidential = loaded.as_evidential().with_context(|| {
-            format!(
-                "{} is a `{}` model: --constructor, --threshold, --selection and --estimator \
+        let evidential = (loaded.as_ref() as &dyn std::any::Any)
+            .downcast_ref::<Evidential>()
+            .with_context(|| {
+                format!(
+                    "{} is a `{}` model: --constructor, --threshold, --selection and --estimator \
                  apply to evidential models only",
-                args.model.display(),
-                loaded.method()
-            )
-        })?;
+                    args.model.display(),
+                    loaded.method()
+                )
+            })?;
         let settings = args.track.apply(evidential.model().track_settings())?;
         Box::new(evidential.with_track_settings(settings)?)
     } else {

@@ -246,10 +246,6 @@ impl PoseEstimator for Evidential {
     fn to_json(&self) -> Result<String, EstimatorError> {
         Ok(self.model.to_json()?)
     }
-
-    fn as_evidential(&self) -> Option<&Evidential> {
-        Some(self)
-    }
 }
 
 /// The seam's view of one frame of the tracker.
@@ -358,6 +354,57 @@ impl StateCountTuner for ValidationTuner<'_> {
             .collect::<Result<Vec<_>, _>>()?;
         Ok(validation_error(&estimates, self.truth, self.penalty))
     }
+}
+
+/// The scenario checks of the evidential tracker: what only it limits (its groups are bit masks,
+/// its state counts are listed per feature, splitting learns a reliability per group).
+pub(crate) fn check_settings(
+    settings: &super::EstimatorSettings,
+    context: &super::SettingsContext,
+) -> Result<(), String> {
+    check_discrete_frames(settings, context)?;
+    let n = context.feature_names.len();
+    if let crate::track::SelectionPolicy::Splitting { .. } = settings.evidential.track.selection {
+        if context.has_validation && n > MAX_FEATURES_GROUP_ERRORS {
+            return Err(format!(
+                "[track]: the splitting policy learns a reliability for every group of \
+                 features, which takes at most {MAX_FEATURES_GROUP_ERRORS} features (there are {n}): \
+                 use fewer features or another selection policy"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// What every tracker on the HMM frames needs: at most [`crate::track::MAX_FEATURES`] features,
+/// groups no larger than the features, a state count for every feature.
+pub(crate) fn check_discrete_frames(
+    settings: &super::EstimatorSettings,
+    context: &super::SettingsContext,
+) -> Result<(), String> {
+    let names = &context.feature_names;
+    let max = crate::track::MAX_FEATURES;
+    if names.len() > max {
+        return Err(format!(
+            "[features]: {} features, but the tracker takes at most {max}: use fewer \
+             size-function lines or drop the barycentre",
+            names.len()
+        ));
+    }
+    let min_size = settings.evidential.track.selection.min_size();
+    if min_size > names.len() {
+        return Err(format!(
+            "[track]: selection `min_size = {min_size}` is more than the {} features: no group \
+             could ever be chosen",
+            names.len()
+        ));
+    }
+    settings
+        .evidential
+        .model
+        .state_ranges(names.len())
+        .map_err(|e| format!("[model]: {e} (the features are {})", names.join(", ")))?;
+    Ok(())
 }
 
 #[cfg(test)]

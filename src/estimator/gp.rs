@@ -472,3 +472,11 @@ impl Factor {
         Err("the kernel matrix is not positive definite, even with jitter of 1e-2 σf²".into())
     }
 }
+
+/// The scenario checks of the Gaussian process: its `[gp]` section.
+pub(crate) fn check_settings(
+    settings: &super::EstimatorSettings,
+    _context: &super::SettingsContext,
+) -> Result<(), String> {
+    settings.gp.check().map_err(|e| format!("[gp]: {e}"))
+}

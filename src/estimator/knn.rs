@@ -411,3 +411,11 @@ impl PoseEstimator for Knn {
         write_file(&self.file)
     }
 }
+
+/// The scenario checks of k-NN: its `[knn]` section.
+pub(crate) fn check_settings(
+    settings: &super::EstimatorSettings,
+    _context: &super::SettingsContext,
+) -> Result<(), String> {
+    settings.knn.check().map_err(|e| format!("[knn]: {e}"))
+}

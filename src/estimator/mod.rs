@@ -14,6 +14,7 @@ mod gp;
 mod knn;
 mod particle;
 mod refine;
+mod registry;
 pub mod synthetic;
 mod temporal;
 mod velocity;
@@ -27,6 +28,10 @@ pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
 pub use particle::{ParticleFilter, ParticleSettings};
+pub use registry::{
+    register, CheckFn, EstimatorSettings, FitFn, LoadFn, Method, MethodEntry, RegistryError,
+    SettingsContext, SharedFitFn, BUILT_IN,
+};
 pub use temporal::{
     TemporalEvidential, TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES,
 };
@@ -88,75 +93,6 @@ pub enum EstimatorError {
         /// The I/O error.
         source: std::io::Error,
     },
-}
-
-/// The estimation methods behind the seam, by the name scenario and model files use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Method {
-    /// The paper's evidential tracker ([`Evidential`]).
-    Evidential,
-    /// k-nearest neighbours in standardised feature space ([`Knn`]).
-    Knn,
-    /// Gaussian-process regression with an ARD kernel ([`Gp`]).
-    Gp,
-    /// The workspace centre, whatever the frame ([`Centre`]): the error of knowing nothing.
-    Centre,
-    /// The continuous evidential tracker: feature maps learned as smooth functions of the pose,
-    /// likelihood-based consonant functions, the paper's selection ([`Continuous`]).
-    Continuous,
-    /// The paper's tracker with the belief of the last frame carried on by a motion model
-    /// ([`TemporalEvidential`]).
-    EvidentialTemporal,
-    /// A particle filter with the continuous tracker's feature maps as likelihood and the same
-    /// motion model ([`ParticleFilter`]).
-    ParticleFilter,
-    /// The continuous evidential tracker with the carried belief of the last frame
-    /// ([`ContinuousTemporal`]).
-    ContinuousTemporal,
-}
-
-impl Method {
-    /// Every method, in the order tables list them.
-    pub const ALL: [Method; 8] = [
-        Method::Evidential,
-        Method::EvidentialTemporal,
-        Method::Continuous,
-        Method::ContinuousTemporal,
-        Method::Knn,
-        Method::Gp,
-        Method::ParticleFilter,
-        Method::Centre,
-    ];
-
-    /// The methods a scenario runs unless it lists its own: the per-frame ones.
-    pub const PER_FRAME: [Method; 5] = [
-        Method::Evidential,
-        Method::Continuous,
-        Method::Knn,
-        Method::Gp,
-        Method::Centre,
-    ];
-
-    /// The name scenario and model files use.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Evidential => "evidential",
-            Method::Knn => "knn",
-            Method::Gp => "gp",
-            Method::Centre => "centre",
-            Method::Continuous => "continuous",
-            Method::EvidentialTemporal => "evidential_temporal",
-            Method::ParticleFilter => "particle_filter",
-            Method::ContinuousTemporal => "continuous_temporal",
-        }
-    }
-}
-
-impl std::fmt::Display for Method {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
 }
 
 /// One frame's estimate and diagnostics. Diagnostics a method has no notion of are `None`.
@@ -292,7 +228,7 @@ impl PoseEstimate {
 }
 
 /// A fitted pose estimator.
-pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
+pub trait PoseEstimator: Send + Sync + std::fmt::Debug + std::any::Any {
     /// The method's name, as written in scenario and model files (`"evidential"`).
     fn method(&self) -> &'static str;
 
@@ -315,11 +251,6 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug {
     /// frames showed; the others estimate each frame alone (the default).
     fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
         Box::new(FrameByFrame(self))
-    }
-
-    /// The evidential tracker behind this estimator, if it is one (for its model's details).
-    fn as_evidential(&self) -> Option<&Evidential> {
-        None
     }
 
     /// The same fitted estimator recording `provenance` instead, for methods whose fit does not
@@ -351,59 +282,6 @@ impl<E: PoseEstimator + ?Sized> MotionTracker for FrameByFrame<'_, E> {
         features: &[Option<f64>],
     ) -> Result<PoseEstimate, EstimatorError> {
         self.0.estimate(features)
-    }
-}
-
-/// The settings of every method, as a scenario gives them.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct EstimatorSettings {
-    /// The evidential tracker's.
-    pub evidential: EvidentialSettings,
-    /// k-nearest neighbours'.
-    pub knn: KnnSettings,
-    /// The Gaussian process's.
-    pub gp: GpSettings,
-    /// The continuous evidential tracker's.
-    pub continuous: ContinuousSettings,
-    /// The motion model and the carried belief's reliability (temporal methods).
-    pub temporal: TemporalSettings,
-    /// The particle filter's.
-    pub particle_filter: ParticleSettings,
-}
-
-impl Method {
-    /// Fits this method on `data`.
-    ///
-    /// # Errors
-    /// The method's fitting errors.
-    pub fn fit(
-        self,
-        settings: &EstimatorSettings,
-        data: &TrainingSet,
-    ) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
-        Ok(match self {
-            Method::Evidential => Box::new(Evidential::fit(&settings.evidential, data)?),
-            Method::Knn => Box::new(Knn::fit(&settings.knn, data)?),
-            Method::Gp => Box::new(Gp::fit(&settings.gp, data)?),
-            Method::Centre => Box::new(Centre::fit(&CentreSettings::default(), data)?),
-            Method::Continuous => Box::new(Continuous::fit(&settings.continuous, data)?),
-            Method::EvidentialTemporal => Box::new(TemporalEvidential::fit(
-                &settings.evidential,
-                &settings.temporal,
-                data,
-            )?),
-            Method::ContinuousTemporal => Box::new(ContinuousTemporal::fit(
-                &settings.continuous,
-                &settings.temporal,
-                data,
-            )?),
-            Method::ParticleFilter => Box::new(ParticleFilter::fit(
-                &settings.particle_filter,
-                &settings.temporal,
-                &settings.continuous,
-                data,
-            )?),
-        })
     }
 }
 
@@ -539,9 +417,9 @@ pub(crate) fn bounding_box(poses: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
     (lo, hi)
 }
 
-/// Reads a model file written by any estimator's [`PoseEstimator::to_json`] and returns the
-/// estimator it describes: its `method` field picks the reader (`evidential` when absent, so that
-/// old evidential files are named as such).
+/// Reads a model file written by any registered estimator's [`PoseEstimator::to_json`] and
+/// returns the estimator it describes: its `method` field picks the registry entry that reads it
+/// (`evidential` when absent, so that old evidential files are named as such).
 ///
 /// # Errors
 /// [`EstimatorError::Io`] when the file cannot be read; [`EstimatorError::Model`] naming the
@@ -551,34 +429,19 @@ pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         path: path.display().to_string(),
         source,
     })?;
-    let method = serde_json::from_str::<serde_json::Value>(&text)
+    let name = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
-        .and_then(|v| v.get("method")?.as_str().map(String::from));
-    Ok(match method.as_deref() {
-        Some(Knn::METHOD) => Box::new(Knn::load(path)?),
-        Some(Gp::METHOD) => Box::new(Gp::load(path)?),
-        Some(Centre::METHOD) => Box::new(Centre::load(path)?),
-        Some(Continuous::METHOD) => Box::new(Continuous::load(path)?),
-        Some(TemporalEvidential::METHOD) => Box::new(TemporalEvidential::load(path)?),
-        Some(ParticleFilter::METHOD) => Box::new(ParticleFilter::load(path)?),
-        Some(ContinuousTemporal::METHOD) => Box::new(ContinuousTemporal::load(path)?),
-        Some(crate::model::METHOD) | None => Box::new(Evidential::load(path)?),
-        Some(other) => {
-            return Err(ModelError::File {
-                path: path.to_path_buf(),
-                source: Box::new(ModelError::Corrupted(format!(
-                "unknown method `{other}`: this build reads `{}`, `{}`, `{}`, `{}`, `{}`, `{}`, `{}` and `{}` model files",
-                crate::model::METHOD,
-                TemporalEvidential::METHOD,
-                ParticleFilter::METHOD,
-                Continuous::METHOD,
-                ContinuousTemporal::METHOD,
-                Knn::METHOD,
-                Gp::METHOD,
-                Centre::METHOD
+        .and_then(|v| v.get("method")?.as_str().map(String::from))
+        .unwrap_or_else(|| crate::model::METHOD.to_string());
+    match Method::from_name(&name) {
+        Some(method) => (method.entry().load)(path),
+        None => Err(ModelError::File {
+            path: path.to_path_buf(),
+            source: Box::new(ModelError::Corrupted(format!(
+                "unknown method `{name}`: this build reads {} model files",
+                Method::names_sentence()
             ))),
-            }
-            .into())
         }
-    })
+        .into()),
+    }
 }

@@ -391,6 +391,23 @@ impl MotionTracker for FilterMotion<'_> {
     }
 }
 
+/// The scenario checks of the particle filter: its section, the `[temporal]` motion model and
+/// the continuous tracker's (its feature maps are fitted with those settings).
+pub(crate) fn check_settings(
+    settings: &super::EstimatorSettings,
+    context: &super::SettingsContext,
+) -> Result<(), String> {
+    settings
+        .temporal
+        .check()
+        .map_err(|e| format!("[temporal]: {e}"))?;
+    settings
+        .particle_filter
+        .check()
+        .map_err(|e| format!("[particle_filter]: {e}"))?;
+    super::continuous::check_settings(settings, context)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -460,6 +460,30 @@ fn dilate(poses: &[[f64; 2]], contour: &[f64], reach: f64, shift: [f64; 2]) -> V
         .collect()
 }
 
+/// The scenario checks of the temporal evidential tracker: the `[temporal]` section, no
+/// splitting, and the HMM frames' limits.
+pub(crate) fn check_settings(
+    settings: &super::EstimatorSettings,
+    context: &super::SettingsContext,
+) -> Result<(), String> {
+    settings
+        .temporal
+        .check()
+        .map_err(|e| format!("[temporal]: {e}"))?;
+    if matches!(
+        settings.evidential.track.selection,
+        crate::track::SelectionPolicy::Splitting { .. }
+    ) {
+        return Err(
+            "[track]: the temporal evidential tracker takes `selection` largest_subset or \
+             lowest_conflict, not splitting: list the methods without \"evidential_temporal\" \
+             in `estimators`"
+                .into(),
+        );
+    }
+    super::evidential::check_discrete_frames(settings, context)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -17,9 +17,7 @@ pub use workbench::{Step, Workbench};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use crate::estimator::{
-    EstimatorError, EstimatorSettings, EvidentialSettings, Labelled, PoseEstimator, TrainingSet,
-};
+use crate::estimator::{EstimatorError, Evidential, Labelled, PoseEstimator, TrainingSet};
 use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
 use crate::model::Provenance;
@@ -159,23 +157,9 @@ pub fn run(
     }
 
     // Every method fits on the same training set and estimates the same feature rows.
-    let settings = EstimatorSettings {
-        evidential: EvidentialSettings {
-            // Training on its own stream of the master seed (`model.seed` picks among streams).
-            model: crate::model::ModelSettings {
-                seed: seed::for_training(master, s.model.seed),
-                ..s.model.clone()
-            },
-            track: s.track.clone(),
-            learn_threshold: s.learn_threshold,
-            threshold_rule: s.threshold_rule,
-        },
-        knn: s.knn.clone(),
-        gp: s.gp.clone(),
-        continuous: s.continuous.clone(),
-        temporal: s.temporal.clone(),
-        particle_filter: s.particle_filter.clone(),
-    };
+    let mut settings = s.estimator_settings();
+    // Training on its own stream of the master seed (`model.seed` picks among streams).
+    settings.evidential.model.seed = seed::for_training(master, s.model.seed);
     let training = TrainingSet {
         feature_names: &names,
         feature_config: Some(&s.features),
@@ -255,7 +239,7 @@ pub fn run(
 
     let evidential = estimators
         .iter()
-        .find_map(|e| e.as_evidential())
+        .find_map(|e| (e.as_ref() as &dyn std::any::Any).downcast_ref::<Evidential>())
         .map(|e| e.model());
     let summary = RunSummary {
         scenario: s.name.clone(),
@@ -390,16 +374,7 @@ pub fn run_each(
 /// the samples kept. It only orders the runs; the results do not depend on it.
 fn expected_cost(scenario: &CheckedScenario) -> f64 {
     let s = scenario.get();
-    let heavy = s
-        .estimators
-        .iter()
-        .filter(|m| {
-            matches!(
-                m,
-                crate::estimator::Method::Gp | crate::estimator::Method::Continuous
-            )
-        })
-        .count();
+    let heavy = s.estimators.iter().filter(|m| m.entry().heavy_fit).count();
     let kept = 1.0 / s.sample.keep_every.max(1) as f64;
     let features = scenario.feature_set().len() as f64;
     (heavy as f64 + 0.01 * s.estimators.len() as f64) * features * kept.powi(3)

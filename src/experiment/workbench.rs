@@ -172,12 +172,7 @@ impl Workbench {
 /// the training and validation data bit for bit (not the provenance). `None` for methods that
 /// do not share fits.
 fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> Option<Vec<u8>> {
-    let method_settings = match method {
-        Method::Gp => serde_json::to_string(&settings.gp),
-        Method::Continuous => serde_json::to_string(&settings.continuous),
-        _ => return None,
-    }
-    .ok()?;
+    let method_settings = (method.entry().shared_fit?)(settings)?;
     let header = serde_json::json!({
         "method": method,
         "settings": method_settings,

@@ -13,15 +13,15 @@ use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
 use crate::estimator::{
-    ContinuousSettings, GpSettings, KnnSettings, Method, ParticleSettings, TemporalSettings,
-    MAX_CONTINUOUS_FEATURES, MAX_FEATURES_GROUP_ERRORS,
+    ContinuousSettings, EstimatorSettings, EvidentialSettings, GpSettings, KnnSettings, Method,
+    ParticleSettings, SettingsContext, TemporalSettings,
 };
 use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
 use crate::model::{ModelSettings, StateCounts, Tuning};
 use crate::seed;
 use crate::sim::{Motion, SimSettings};
-use crate::track::{SelectionPolicy, ThresholdRule, TrackSettings, MAX_FEATURES};
+use crate::track::{ThresholdRule, TrackSettings};
 
 /// Failures while reading or checking a scenario.
 #[derive(Debug, thiserror::Error)]
@@ -186,6 +186,9 @@ pub struct Scenario {
     pub temporal: TemporalSettings,
     /// The particle filter's settings (`[particle_filter]`).
     pub particle_filter: ParticleSettings,
+    /// The settings of methods registered at run time, by method name (`[methods.NAME]`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub methods: BTreeMap<String, toml::Table>,
     /// Regression expectations.
     pub expect: Expectations,
     /// The paper's figure for this setup, printed beside ours.
@@ -215,12 +218,13 @@ impl Default for Scenario {
             track: TrackSettings::default(),
             learn_threshold: false,
             threshold_rule: ThresholdRule::default(),
-            estimators: Method::PER_FRAME.to_vec(),
+            estimators: Method::defaults(),
             knn: KnnSettings::default(),
             gp: GpSettings::default(),
             continuous: ContinuousSettings::default(),
             temporal: TemporalSettings::default(),
             particle_filter: ParticleSettings::default(),
+            methods: BTreeMap::new(),
             expect: Expectations::default(),
             paper_error: None,
             sweep: Sweep::default(),
@@ -253,6 +257,25 @@ pub fn default_test_motion() -> Motion {
 }
 
 impl Scenario {
+    /// Every method's settings as this scenario gives them (the evidential model's seed as
+    /// written: a run derives its training stream from it and the master seed).
+    pub fn estimator_settings(&self) -> EstimatorSettings {
+        EstimatorSettings {
+            evidential: EvidentialSettings {
+                model: self.model.clone(),
+                track: self.track.clone(),
+                learn_threshold: self.learn_threshold,
+                threshold_rule: self.threshold_rule,
+            },
+            knn: self.knn.clone(),
+            gp: self.gp.clone(),
+            continuous: self.continuous.clone(),
+            temporal: self.temporal.clone(),
+            particle_filter: self.particle_filter.clone(),
+            registered: self.methods.clone(),
+        }
+    }
+
     /// Checks everything before anything runs: every section's own `check()`, the state counts,
     /// the feature count and the selection sizes against the number of features, and the values
     /// deserialisation cannot check. Random paths without a seed get one derived from the master
@@ -288,98 +311,23 @@ impl Scenario {
         self.model
             .check()
             .map_err(|e| invalid(format!("[model]: {e}")))?;
-        if self.estimators.contains(&Method::Knn) {
-            self.knn
-                .check()
-                .map_err(|e| invalid(format!("[knn]: {e}")))?;
+        let settings = self.estimator_settings();
+        let context = SettingsContext {
+            feature_names: features.names(),
+            has_validation: self.validation.is_some(),
+        };
+        for method in &self.estimators {
+            method.check(&settings, &context).map_err(invalid)?;
         }
-        if self.estimators.contains(&Method::Gp) {
-            self.gp.check().map_err(|e| invalid(format!("[gp]: {e}")))?;
-        }
-        let runs = |methods: &[Method]| self.estimators.iter().any(|m| methods.contains(m));
-        if runs(&[
-            Method::EvidentialTemporal,
-            Method::ContinuousTemporal,
-            Method::ParticleFilter,
-        ]) {
-            self.temporal
-                .check()
-                .map_err(|e| invalid(format!("[temporal]: {e}")))?;
-        }
-        if runs(&[Method::ParticleFilter]) {
-            self.particle_filter
-                .check()
-                .map_err(|e| invalid(format!("[particle_filter]: {e}")))?;
-        }
-        if runs(&[Method::EvidentialTemporal])
-            && matches!(self.track.selection, SelectionPolicy::Splitting { .. })
+        if let Some(name) = self
+            .methods
+            .keys()
+            .find(|name| !self.estimators.iter().any(|m| m.name() == *name))
         {
-            return Err(invalid(
-                "[track]: the temporal evidential tracker takes `selection` largest_subset or \
-                 lowest_conflict, not splitting: list the methods without \"evidential_temporal\" \
-                 in `estimators`"
-                    .into(),
-            ));
-        }
-        if runs(&[Method::ContinuousTemporal])
-            && matches!(self.continuous.selection, SelectionPolicy::Splitting { .. })
-        {
-            return Err(invalid(
-                "[continuous]: the continuous tracker over time takes `selection` largest_subset \
-                 or lowest_conflict, not splitting: list the methods without \
-                 \"continuous_temporal\" in `estimators`"
-                    .into(),
-            ));
-        }
-        if runs(&[
-            Method::Continuous,
-            Method::ContinuousTemporal,
-            Method::ParticleFilter,
-        ]) {
-            self.continuous
-                .check()
-                .map_err(|e| invalid(format!("[continuous]: {e}")))?;
-            if features.len() > MAX_CONTINUOUS_FEATURES {
-                return Err(invalid(format!(
-                    "[features]: {} features, but the continuous tracker takes at most \
-                     {MAX_CONTINUOUS_FEATURES}: use fewer size-function lines, or list the methods \
-                     without \"continuous\" and \"particle_filter\" in `estimators`",
-                    features.len()
-                )));
-            }
-            let min_size = self.continuous.selection.min_size();
-            if min_size > features.len() {
-                return Err(invalid(format!(
-                    "[continuous]: selection `min_size = {min_size}` is more than the {} \
-                     features: no group could ever be chosen",
-                    features.len()
-                )));
-            }
-        }
-        // What only the evidential tracker limits (its groups are bit masks, its states per
-        // feature are listed per feature).
-        if runs(&[Method::Evidential, Method::EvidentialTemporal]) {
-            if features.len() > MAX_FEATURES {
-                return Err(invalid(format!(
-                    "[features]: {} features, but the tracker takes at most {MAX_FEATURES}: use fewer \
-                     size-function lines or drop the barycentre",
-                    features.len()
-                )));
-            }
-            let min_size = self.track.selection.min_size();
-            if min_size > features.len() {
-                return Err(invalid(format!(
-                    "[track]: selection `min_size = {min_size}` is more than the {} features: no group \
-                     could ever be chosen",
-                    features.len()
-                )));
-            }
-            self.model.state_ranges(features.len()).map_err(|e| {
-                invalid(format!(
-                    "[model]: {e} (the features are {})",
-                    features.names().join(", ")
-                ))
-            })?;
+            return Err(invalid(format!(
+                "[methods.{name}]: settings for `{name}`, which `estimators` does not list: \
+                 add it there or remove the section"
+            )));
         }
         self.track
             .clone()
@@ -469,19 +417,6 @@ impl Scenario {
             {
                 return Err(invalid(format!(
                     "`{prefix}`: limits on corrupted frames need [[faults]]"
-                )));
-            }
-        }
-        if let SelectionPolicy::Splitting { .. } = self.track.selection {
-            if self.estimators.contains(&Method::Evidential)
-                && self.validation.is_some()
-                && features.len() > MAX_FEATURES_GROUP_ERRORS
-            {
-                return Err(invalid(format!(
-                    "[track]: the splitting policy learns a reliability for every group of \
-                     features, which takes at most {MAX_FEATURES_GROUP_ERRORS} features (there are {}): \
-                     use fewer features or another selection policy",
-                    features.len()
                 )));
             }
         }
