@@ -648,8 +648,8 @@ fn smaller_messages_say_what_happened() {
             model.to_str().unwrap(),
             "--validation",
             data,
-            "--threshold-quantile",
-            "2",
+            "--threshold",
+            "quantile:2",
         ],
         "",
     );

@@ -11,12 +11,13 @@ use super::{
     progress_bar, read_dataset, spinner, write_output,
 };
 use evitrack::estimator::{
-    self, missing_penalty, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential,
-    EvidentialSettings, KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
+    self, missing_penalty, DatasetFeatures, EstimatorSettings, Evidential, Method, PoseEstimator,
+    SettingsContext, TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
-use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
+use evitrack::model::{Provenance, StateCounts, Tuning};
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
+use evitrack::scenario::{Scenario, ScenarioSet};
 use evitrack::track::{Estimator, SelectionPolicy, ThresholdRule, TrackSettings};
 
 /// Tracker settings given on the command line; what is left out keeps its value.
@@ -25,8 +26,10 @@ struct TrackOptions {
     /// Belief-function constructor [default at training: bayesian].
     #[arg(long, value_enum)]
     constructor: Option<ConstructorArg>,
-    /// Conflict threshold: a number ≥ 0 or `inf` (combine everything) [default at training:
-    /// inf, or learned with --validation; at tracking: the model's].
+    /// Conflict threshold, one spelling for every method that has one: a number ≥ 0, `inf`
+    /// (combine everything), `learned` (on the validation dataset, by the method's rule) or
+    /// `quantile:Q` (learned as the Q-quantile of the validation levels) [default at training:
+    /// the evidential tracker learns it with --validation, inf without; at tracking: the model's].
     #[arg(long)]
     threshold: Option<String>,
     /// Which compatible group to combine: `largest`, `lowest:N` (lowest conflict among groups of
@@ -62,30 +65,52 @@ impl TrackOptions {
             settings.selection = parse_selection(text)?;
         }
         if let Some(e) = self.estimator {
-            settings.estimator = match e {
-                EstimatorArg::WeightedMean => Estimator::WeightedMean,
-                EstimatorArg::Map => Estimator::Map,
-                EstimatorArg::Pignistic => Estimator::Pignistic,
-            };
+            settings.estimator = e.rule();
         }
         if let Some(text) = &self.threshold {
-            settings.conflict_threshold = parse_threshold(text)?;
+            settings.conflict_threshold = fixed_threshold(text)?;
         }
         Ok(settings)
     }
 }
 
-/// `--threshold`: a number ≥ 0 or `inf`.
-fn parse_threshold(text: &str) -> Result<ConflictLevel> {
-    Ok(match text {
-        "inf" => ConflictLevel::Infinite,
-        text => text
+/// What `--threshold` says.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum ThresholdArg {
+    /// A threshold used as given.
+    Fixed(ConflictLevel),
+    /// Learned on the validation motion, by this rule or the settings' own.
+    Learned(Option<ThresholdRule>),
+}
+
+/// `--threshold`: a number ≥ 0, `inf`, `learned` or `quantile:Q`.
+fn parse_threshold(text: &str) -> Result<ThresholdArg> {
+    let wrong =
+        || format!("--threshold `{text}` must be a number ≥ 0, `inf`, `learned` or `quantile:Q`");
+    Ok(match text.split_once(':') {
+        None if text == "inf" => ThresholdArg::Fixed(ConflictLevel::Infinite),
+        None if text == "learned" => ThresholdArg::Learned(None),
+        Some(("quantile", q)) => ThresholdArg::Learned(Some(ThresholdRule::Quantile(
+            q.parse::<f64>().ok().with_context(wrong)?,
+        ))),
+        _ => text
             .parse::<f64>()
             .ok()
             .filter(|t| t.is_finite() && *t >= 0.0)
-            .map(ConflictLevel::Finite)
-            .with_context(|| format!("--threshold `{text}` must be a number ≥ 0 or `inf`"))?,
+            .map(|t| ThresholdArg::Fixed(ConflictLevel::Finite(t)))
+            .with_context(wrong)?,
     })
+}
+
+/// `--threshold` at tracking: a trained model's threshold can be replaced, not learned again.
+fn fixed_threshold(text: &str) -> Result<ConflictLevel> {
+    match parse_threshold(text)? {
+        ThresholdArg::Fixed(level) => Ok(level),
+        ThresholdArg::Learned(_) => bail!(
+            "--threshold `{text}` learns the threshold, which only `train --validation` can do: \
+             give `track` a number or `inf`"
+        ),
+    }
 }
 
 /// Arguments of `train`.
@@ -96,22 +121,31 @@ pub struct TrainArgs {
     /// Output model file (JSON): self-contained, `track --model` needs nothing else.
     #[arg(long)]
     out: PathBuf,
-    /// A dataset of a validation motion (with ground truth): measures each feature's own error
-    /// (the fallback's ranking) and learns the conflict threshold on it (§4.3).
+    /// A dataset of a validation motion (with ground truth), for what the method learns on
+    /// held-out frames (the evidential tracker: each feature's own error and the conflict
+    /// threshold, §4.3).
     #[arg(long)]
     validation: Option<PathBuf>,
-    /// With --validation, keep the --threshold given instead of learning it.
-    #[arg(long, requires = "validation")]
-    keep_threshold: bool,
-    /// With --validation, learn the threshold as this quantile of the validation motion's levels
-    /// of conflict (e.g. 0.99) instead of the paper's error-weighted mean.
-    #[arg(long, requires = "validation", conflicts_with = "keep_threshold")]
-    threshold_quantile: Option<f64>,
-    /// HMM state counts: one for every feature (`3`) or one per feature (`2,2,2,3,3,2`).
-    /// Default: the paper's, 2,2,2,3,3,2 for the size functions then 3,2 for the barycentre.
+    /// The estimation method: any registered one (`evidential`, `evidential_temporal`,
+    /// `continuous`, `continuous_temporal`, `knn`, `gp`, `particle_filter`, `centre`).
+    #[arg(long, default_value = "evidential", value_parser = parse_method)]
+    method: Method,
+    /// Take the method's settings from this scenario file's sections (its `[knn]`, `[track]`,
+    /// …); the options below and --set then replace values in them. Default: the built-in
+    /// scenario's settings.
+    #[arg(long)]
+    scenario: Option<PathBuf>,
+    /// Replace a setting by its dotted scenario path, as a sweep variant does (`--set knn.k=8`,
+    /// `--set 'continuous.selection={ policy = "lowest_conflict", min_size = 5 }'`); repeatable.
+    /// The value is TOML (a bare word is a string).
+    #[arg(long = "set", value_name = "PATH=VALUE", value_parser = parse_setting)]
+    set: Vec<(String, toml::Value)>,
+    /// HMM state counts (`model.states`): one for every feature (`3`) or one per feature
+    /// (`2,2,2,3,3,2`). Default without --scenario: the paper's, 2,2,2,3,3,2 for the size
+    /// functions then 3,2 for the barycentre.
     #[arg(long)]
     states: Option<String>,
-    /// Tune each feature's state count by BIC between these bounds (`2..5`) instead.
+    /// Tune each feature's state count by BIC between these bounds (`2..5`, `model.tuning`).
     #[arg(long)]
     tune_bic: Option<String>,
     /// Feature configuration (TOML); default: the paper's 6 size functions.
@@ -120,51 +154,39 @@ pub struct TrainArgs {
     /// Add the barycentre features to the default configuration.
     #[arg(long, conflicts_with = "config")]
     barycentre: bool,
-    /// Seed of the EM initialisations.
+    /// Seed of the EM initialisations (`model.seed`).
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// The estimation method. --states, --tune-bic, --keep-threshold and the tracker options
-    /// are the evidential tracker's (the continuous one takes --threshold, --selection and
-    /// --threshold-quantile); --k and --weights are k-NN's.
-    #[arg(long, value_enum, default_value = "evidential")]
-    method: MethodArg,
-    /// k-NN: the number of neighbours.
-    #[arg(long, default_value_t = KnnSettings::default().k)]
-    k: usize,
-    /// k-NN: how the neighbours' poses are weighted.
-    #[arg(long, value_enum, default_value = "distance")]
-    weights: WeightsArg,
+    /// k-NN: the number of neighbours (`knn.k`).
+    #[arg(long)]
+    k: Option<usize>,
+    /// k-NN: how the neighbours' poses are weighted (`knn.weights`).
+    #[arg(long, value_enum)]
+    weights: Option<WeightsArg>,
     #[command(flatten)]
     track: TrackOptions,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-enum MethodArg {
-    /// The paper's evidential tracker.
-    Evidential,
-    /// k-nearest neighbours on standardised features.
-    Knn,
-    /// Gaussian-process regression (ARD kernel, marginal-likelihood hyperparameters).
-    Gp,
-    /// The workspace centre: the error of knowing nothing.
-    Centre,
-    /// The continuous evidential tracker (feature maps learned as smooth functions of the pose).
-    Continuous,
+/// `--method`: a registered method's name.
+fn parse_method(text: &str) -> Result<Method, String> {
+    text.parse()
 }
 
-impl MethodArg {
-    fn method(self) -> Method {
-        match self {
-            MethodArg::Evidential => Method::EVIDENTIAL,
-            MethodArg::Knn => Method::KNN,
-            MethodArg::Gp => Method::GP,
-            MethodArg::Centre => Method::CENTRE,
-            MethodArg::Continuous => Method::CONTINUOUS,
-        }
-    }
+/// `--set PATH=VALUE`: the value as TOML, or as a string when it is not TOML.
+fn parse_setting(text: &str) -> Result<(String, toml::Value), String> {
+    let (path, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("`{text}` must look like PATH=VALUE, e.g. knn.k=8"))?;
+    let value = value.trim();
+    let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(value.to_string()));
+    Ok((path.trim().to_string(), parsed))
 }
 
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
 enum WeightsArg {
     /// Every neighbour counts the same.
     Uniform,
@@ -196,6 +218,16 @@ enum EstimatorArg {
     Map,
     /// Σ BetP(q) q with the pignistic probability.
     Pignistic,
+}
+
+impl EstimatorArg {
+    fn rule(self) -> Estimator {
+        match self {
+            EstimatorArg::WeightedMean => Estimator::WeightedMean,
+            EstimatorArg::Map => Estimator::Map,
+            EstimatorArg::Pignistic => Estimator::Pignistic,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -288,55 +320,16 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         missing_penalty: missing_penalty(&dataset),
         provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };
-    if args.method != MethodArg::Evidential {
-        let continuous = args.method == MethodArg::Continuous;
-        let track = &args.track;
-        if args.states.is_some()
-            || args.tune_bic.is_some()
-            || args.keep_threshold
-            || track.constructor.is_some()
-            || track.estimator.is_some()
-        {
-            bail!(
-                "--states, --tune-bic, --keep-threshold, --constructor and --estimator apply to \
-                 --method evidential only"
-            );
-        }
-        if !continuous && (args.threshold_quantile.is_some() || track.given()) {
-            bail!(
-                "--threshold-quantile and the tracker options apply to --method evidential and \
-                 continuous only"
-            );
-        }
-        let mut continuous_settings = ContinuousSettings::default();
-        if let Some(text) = &track.selection {
-            continuous_settings.selection = parse_selection(text)?;
-        }
-        if let Some(text) = &track.threshold {
-            continuous_settings.conflict_threshold = parse_threshold(text)?;
-        }
-        if let Some(q) = args.threshold_quantile {
-            continuous_settings.learn_threshold = true;
-            continuous_settings.threshold_rule = ThresholdRule::Quantile(q);
-        }
-        let settings = EstimatorSettings {
-            continuous: continuous_settings,
-            knn: KnnSettings {
-                k: args.k,
-                weights: match args.weights {
-                    WeightsArg::Uniform => KnnWeights::Uniform,
-                    WeightsArg::Distance => KnnWeights::Distance,
-                },
-            },
-            ..EstimatorSettings::default()
-        };
-        let method = args.method.method();
-        let bar = spinner(&format!("fit {method}"));
-        let estimator = method.fit(&settings, &training);
-        bar.finish_and_clear();
-        let estimator = estimator?;
-        evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
-            .with_context(|| format!("writing {}", args.out.display()))?;
+    let settings = train_settings(args, &names, validation.is_some())?;
+    let method = args.method;
+    let bar = spinner(&format!("fit {method}"));
+    let estimator = method.fit(&settings, &training);
+    bar.finish_and_clear();
+    let estimator = estimator?;
+    evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let Some(estimator) = (estimator.as_ref() as &dyn std::any::Any).downcast_ref::<Evidential>()
+    else {
         eprintln!(
             "trained `{}` on {} sample poses; model written to {}",
             estimator.method(),
@@ -344,44 +337,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
             args.out.display()
         );
         return Ok(ExitCode::SUCCESS);
-    }
-    let states = match &args.states {
-        Some(text) => parse_counts(text, "--states")?,
-        None => StateCounts::PerFeature(
-            names
-                .iter()
-                .map(|name| paper_states(name))
-                .collect::<Result<_>>()?,
-        ),
     };
-    let mut model = ModelSettings {
-        states,
-        seed: args.seed,
-        ..ModelSettings::default()
-    };
-    if let Some(bounds) = &args.tune_bic {
-        let (low, high) = bounds
-            .split_once("..")
-            .with_context(|| format!("--tune-bic `{bounds}` must look like `2..5`"))?;
-        model.tuning = Tuning::Bic {
-            min_states: parse_counts(low, "--tune-bic lower bound")?,
-            max_states: parse_counts(high, "--tune-bic upper bound")?,
-        };
-    }
-    let settings = EvidentialSettings {
-        model,
-        track: args.track.apply(&TrackSettings::default())?,
-        learn_threshold: validation.is_some() && !args.keep_threshold,
-        threshold_rule: args
-            .threshold_quantile
-            .map_or(ThresholdRule::ErrorWeighted, ThresholdRule::Quantile),
-    };
-    let bar = spinner("fit evidential");
-    let estimator = Evidential::fit(&settings, &training);
-    bar.finish_and_clear();
-    let estimator = estimator?;
-    evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
-        .with_context(|| format!("writing {}", args.out.display()))?;
     let mut table = Table::new([
         "feature",
         "states",
@@ -437,6 +393,165 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         args.out.display()
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// A setting's value as TOML.
+fn toml_of<T: serde::Serialize>(value: &T) -> Result<toml::Value> {
+    toml::Value::try_from(value).context("a setting has no TOML form")
+}
+
+/// The settings `train` fits with, built as a scenario's are: the `--scenario` file's (or the
+/// built-in scenario's) sections, the options and `--set` laid over them, then the method's
+/// registry checks. Every option must name a section the method reads.
+fn train_settings(
+    args: &TrainArgs,
+    names: &[String],
+    has_validation: bool,
+) -> Result<EstimatorSettings> {
+    let method = args.method;
+    let reads = |section: &str| method.entry().sections.contains(&section);
+    let base = match &args.scenario {
+        Some(path) => {
+            // As written (random paths' seeds not yet derived: they need not fit TOML's i64).
+            let set = ScenarioSet::load(path)?;
+            let first = set
+                .variants
+                .first()
+                .with_context(|| format!("{} has no scenario", path.display()))?;
+            toml::from_str::<Scenario>(&first.to_toml()?)
+                .with_context(|| format!("reading back the settings of {}", path.display()))?
+        }
+        None => Scenario {
+            name: "train".into(),
+            ..Scenario::default()
+        },
+    };
+    let mut values: Vec<(String, toml::Value)> = Vec::new();
+    let mut put = |option: &str, path: &str, value: toml::Value| -> Result<()> {
+        let section = path.split('.').next().unwrap_or(path);
+        let section = match section {
+            "learn_threshold" | "threshold_rule" => "track",
+            other => other,
+        };
+        if !reads(section) {
+            bail!(
+                "{option} sets `{path}`, which `{method}` does not read (it reads {}): leave it \
+                 out or pick a method that has it",
+                match method.entry().sections {
+                    [] => "no settings".to_string(),
+                    sections => sections
+                        .iter()
+                        .map(|s| format!("[{s}]"))
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                }
+            );
+        }
+        values.push((path.to_string(), value));
+        Ok(())
+    };
+    if args.scenario.is_none() && reads("model") && args.states.is_none() {
+        let states: Vec<usize> = names
+            .iter()
+            .map(|n| paper_states(n))
+            .collect::<Result<_>>()?;
+        put(
+            "the paper's state counts",
+            "model.states",
+            toml_of(&StateCounts::PerFeature(states))?,
+        )?;
+    }
+    if reads("model") {
+        put("--seed", "model.seed", toml_of(&args.seed)?)?;
+    }
+    if let Some(text) = &args.states {
+        put(
+            "--states",
+            "model.states",
+            toml_of(&parse_counts(text, "--states")?)?,
+        )?;
+    }
+    if let Some(bounds) = &args.tune_bic {
+        let (low, high) = bounds
+            .split_once("..")
+            .with_context(|| format!("--tune-bic `{bounds}` must look like `2..5`"))?;
+        let tuning = Tuning::Bic {
+            min_states: parse_counts(low, "--tune-bic lower bound")?,
+            max_states: parse_counts(high, "--tune-bic upper bound")?,
+        };
+        put("--tune-bic", "model.tuning", toml_of(&tuning)?)?;
+    }
+    if let Some(k) = args.k {
+        put("--k", "knn.k", toml_of(&k)?)?;
+    }
+    if let Some(weights) = args.weights {
+        put("--weights", "knn.weights", toml_of(&weights)?)?;
+    }
+    let track = &args.track;
+    if let Some(c) = track.constructor {
+        let constructor = match c {
+            ConstructorArg::Bayesian => Constructor::Bayesian,
+            ConstructorArg::Consonant => Constructor::Consonant,
+        };
+        put("--constructor", "track.constructor", toml_of(&constructor)?)?;
+    }
+    if let Some(e) = track.estimator {
+        put("--estimator", "track.estimator", toml_of(&e.rule())?)?;
+    }
+    // The conflict threshold and the selection live in [track] for the trackers on HMM
+    // frames and in [continuous] for those on feature maps: one option for both.
+    let (threshold, learn, rule, selection) = if reads("track") {
+        (
+            "track.conflict_threshold",
+            "learn_threshold",
+            "threshold_rule",
+            "track.selection",
+        )
+    } else {
+        (
+            "continuous.conflict_threshold",
+            "continuous.learn_threshold",
+            "continuous.threshold_rule",
+            "continuous.selection",
+        )
+    };
+    if let Some(text) = &track.selection {
+        put("--selection", selection, toml_of(&parse_selection(text)?)?)?;
+    }
+    match track
+        .threshold
+        .as_deref()
+        .map(parse_threshold)
+        .transpose()?
+    {
+        Some(ThresholdArg::Fixed(level)) => {
+            put("--threshold", threshold, toml_of(&level)?)?;
+            put("--threshold", learn, toml::Value::Boolean(false))?;
+        }
+        Some(ThresholdArg::Learned(chosen)) => {
+            put("--threshold", learn, toml::Value::Boolean(true))?;
+            if let Some(r) = chosen {
+                put("--threshold", rule, toml_of(&r)?)?;
+            }
+        }
+        // Without a scenario, a validation dataset teaches the evidential trackers their
+        // threshold, as `train` always did.
+        None if args.scenario.is_none() && has_validation && reads("track") => {
+            put("--validation", learn, toml::Value::Boolean(true))?;
+        }
+        None => {}
+    }
+    for (path, value) in &args.set {
+        put("--set", path, value.clone())?;
+    }
+    let scenario = Scenario {
+        estimators: vec![method],
+        ..base.with_values(&values)?
+    };
+    Ok(scenario.check_estimators(&SettingsContext {
+        feature_names: names.to_vec(),
+        has_validation,
+    })?)
 }
 
 pub fn track(args: &TrackArgs) -> Result<ExitCode> {

@@ -257,6 +257,71 @@ pub fn default_test_motion() -> Motion {
 }
 
 impl Scenario {
+    /// This scenario with the values at dotted paths replaced (`"knn.k"`, `"model.states"`), as a
+    /// sweep variant replaces them; unknown or mistyped fields are errors. Not checked.
+    ///
+    /// # Errors
+    /// [`ScenarioError::Invalid`] naming the path or the field that does not fit.
+    pub fn with_values(&self, values: &[(String, toml::Value)]) -> Result<Scenario, ScenarioError> {
+        let invalid = |message: String| ScenarioError::Invalid {
+            scenario: self.name.clone(),
+            message,
+        };
+        let mut value = toml::Value::try_from(self)
+            .map_err(|e| invalid(format!("the settings do not serialise as TOML: {e}")))?;
+        for (path, replacement) in values {
+            sweep::set_path(&mut value, path, replacement.clone()).map_err(invalid)?;
+        }
+        value
+            .try_into()
+            .map_err(|e: toml::de::Error| invalid(e.to_string()))
+    }
+
+    /// Checks the settings of the scenario's `estimators` (and the `[model]` and `[track]`
+    /// sections every scenario holds) against its features, through each method's registry
+    /// entry; returns them. `train` builds its settings through the same check.
+    ///
+    /// # Errors
+    /// [`ScenarioError::Invalid`] saying which section and what to change.
+    pub fn check_estimators(
+        &self,
+        context: &SettingsContext,
+    ) -> Result<EstimatorSettings, ScenarioError> {
+        let invalid = |message: String| ScenarioError::Invalid {
+            scenario: self.name.clone(),
+            message,
+        };
+        self.model
+            .check()
+            .map_err(|e| invalid(format!("[model]: {e}")))?;
+        let settings = self.estimator_settings();
+        for method in &self.estimators {
+            method.check(&settings, context).map_err(invalid)?;
+        }
+        if let Some(name) = self
+            .methods
+            .keys()
+            .find(|name| !self.estimators.iter().any(|m| m.name() == *name))
+        {
+            return Err(invalid(format!(
+                "[methods.{name}]: settings for `{name}`, which `estimators` does not list: \
+                 add it there or remove the section"
+            )));
+        }
+        self.track
+            .clone()
+            .check()
+            .map_err(|e| invalid(format!("[track]: {e}")))?;
+        self.track
+            .clone()
+            .check()
+            .map_err(|e| invalid(format!("[track]: {e}")))?;
+        self.threshold_rule
+            .check()
+            .map_err(|e| invalid(format!("`threshold_rule`: {e}")))?;
+        Ok(settings)
+    }
+
     /// Every method's settings as this scenario gives them (the evidential model's seed as
     /// written: a run derives its training stream from it and the master seed).
     pub fn estimator_settings(&self) -> EstimatorSettings {
@@ -308,31 +373,10 @@ impl Scenario {
             .features
             .check()
             .map_err(|e| invalid(format!("[features]: {e}")))?;
-        self.model
-            .check()
-            .map_err(|e| invalid(format!("[model]: {e}")))?;
-        let settings = self.estimator_settings();
-        let context = SettingsContext {
+        self.check_estimators(&SettingsContext {
             feature_names: features.names(),
             has_validation: self.validation.is_some(),
-        };
-        for method in &self.estimators {
-            method.check(&settings, &context).map_err(invalid)?;
-        }
-        if let Some(name) = self
-            .methods
-            .keys()
-            .find(|name| !self.estimators.iter().any(|m| m.name() == *name))
-        {
-            return Err(invalid(format!(
-                "[methods.{name}]: settings for `{name}`, which `estimators` does not list: \
-                 add it there or remove the section"
-            )));
-        }
-        self.track
-            .clone()
-            .check()
-            .map_err(|e| invalid(format!("[track]: {e}")))?;
+        })?;
         if let Some(adaptive) = &self.sample.adaptive {
             adaptive
                 .check()
@@ -351,9 +395,6 @@ impl Scenario {
                 "`learn_threshold = true` needs a [validation] motion to learn it on".into(),
             ));
         }
-        self.threshold_rule
-            .check()
-            .map_err(|e| invalid(format!("`threshold_rule`: {e}")))?;
         if matches!(self.model.tuning, Tuning::Validation { .. }) && self.validation.is_none() {
             return Err(invalid(
                 "tuning state counts by validation error needs a [validation] motion".into(),

@@ -404,7 +404,11 @@ fn overlay(base: &mut toml::Table, top: toml::Table) {
 }
 
 /// Replaces the value at a dotted path, creating missing tables along the way.
-fn set_path(root: &mut toml::Value, path: &str, value: toml::Value) -> Result<(), String> {
+pub(super) fn set_path(
+    root: &mut toml::Value,
+    path: &str,
+    value: toml::Value,
+) -> Result<(), String> {
     let keys: Vec<&str> = path.split('.').collect();
     if keys.iter().any(|k| k.is_empty()) {
         return Err(format!("`{path}` is not a dotted path like `model.states`"));
