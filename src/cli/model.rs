@@ -15,7 +15,8 @@ use evitrack::estimator::{
     EvidentialSettings, KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
-use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
+use evitrack::model::{ModelSettings, StateCounts, Tuning};
+use evitrack::model_file::Provenance;
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
 use evitrack::track::{Estimator, SelectionPolicy, ThresholdRule, TrackSettings};
 

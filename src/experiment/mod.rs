@@ -22,7 +22,7 @@ use crate::estimator::{
 };
 use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
-use crate::model::Provenance;
+use crate::model_file::Provenance;
 use crate::report::{
     ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, MethodTimings, RunSummary, Timings,
 };
