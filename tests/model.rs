@@ -466,7 +466,9 @@ fn wrong_version_or_corrupted_file_is_a_clear_error() {
     no_version.as_object_mut().unwrap().remove("format_version");
     assert!(matches!(
         EvidentialModel::from_json(&no_version.to_string()),
-        Err(ModelFileError::MissingVersion { expected: FORMAT_VERSION })
+        Err(ModelFileError::MissingVersion {
+            expected: FORMAT_VERSION
+        })
     ));
     // Truncated file.
     let err = EvidentialModel::from_json(&text[..text.len() / 2]).unwrap_err();

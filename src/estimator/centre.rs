@@ -164,4 +164,3 @@ impl PoseEstimator for Centre {
         Ok(model_file::to_text(&self.file)?)
     }
 }
-

@@ -274,7 +274,8 @@ impl Gp {
             return Err(corrupted(format!(
                 "`hyperparameters.length_scales` has {} values for {dim} features",
                 h.length_scales.len()
-            )).into());
+            ))
+            .into());
         }
         let named = (h.length_scales.iter().enumerate())
             .map(|(d, &v)| (format!("hyperparameters.length_scales[{d}]"), v))
@@ -284,9 +285,7 @@ impl Gp {
             ]);
         for (field, v) in named {
             if !(v.is_finite() && v > 0.0) {
-                return Err(corrupted(format!(
-                    "`{field}` is {v}, not a positive number"
-                )).into());
+                return Err(corrupted(format!("`{field}` is {v}, not a positive number")).into());
             }
         }
         check_finite("log_marginal_likelihood", &[file.log_marginal_likelihood])?;

@@ -120,7 +120,8 @@ impl Standardisation {
                 return Err(corrupted(format!(
                     "`{field}.{name}` has {} values where {dim} are expected",
                     values.len()
-                )).into());
+                ))
+                .into());
             }
             check_finite(&format!("{field}.{name}"), values)?;
         }
@@ -165,7 +166,8 @@ pub(super) fn check_samples(
             "`sample_features` has {} rows for {} sample poses",
             rows.len(),
             poses.len()
-        )).into());
+        ))
+        .into());
     }
     for (i, p) in poses.iter().enumerate() {
         check_finite(&format!("sample_poses[{i}]"), p)?;
@@ -175,7 +177,8 @@ pub(super) fn check_samples(
             return Err(corrupted(format!(
                 "`sample_features[{i}]` has {} values for {dim} features",
                 r.len()
-            )).into());
+            ))
+            .into());
         }
         check_finite(&format!("sample_features[{i}]"), r)?;
     }
@@ -325,7 +328,8 @@ impl Knn {
                 "`settings.k` is {} but there are {} samples",
                 file.settings.k,
                 file.sample_poses.len()
-            )).into());
+            ))
+            .into());
         }
         Ok(Self::new(file))
     }

@@ -34,8 +34,8 @@ use super::{
     TrainingSet,
 };
 use crate::features::FeatureConfig;
-use crate::model_file::{self, corrupted, Stamp};
 use crate::model::EvidentialModel;
+use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
 use crate::report::distance;
 use crate::track::{Estimator, SelectionPolicy};
@@ -250,7 +250,8 @@ impl TemporalEvidential {
         if let SelectionPolicy::Splitting { .. } = inner.model().track_settings().selection {
             return Err(corrupted(
                 "evidential_model: the splitting policy is not taken with the past",
-            ).into());
+            )
+            .into());
         }
         Ok(Self::assemble(inner, file))
     }

@@ -106,7 +106,8 @@ impl ContinuousTemporal {
     /// # Errors
     /// [`EstimatorError::File`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: ContinuousTemporalFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let file: ContinuousTemporalFile =
+            model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
         file.settings
             .check()
             .map_err(|e| corrupted(format!("settings: {e}")))?;
