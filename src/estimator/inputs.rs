@@ -11,7 +11,8 @@ use crate::model_file::{corrupted, Header, ModelFileError};
 /// The header of a model file fitted on `data` by `method` (file format `version`).
 pub(super) fn training_header(method: &str, version: u32, data: &TrainingSet) -> Header {
     Header {
-        stamp: crate::model_file::Stamp::new(method, version),
+        format_version: version,
+        method: method.to_string(),
         provenance: data.provenance.clone(),
         feature_config: data.feature_config.cloned(),
         feature_names: data.feature_names.to_vec(),

@@ -1,9 +1,10 @@
 //! Model files: what every method's file shares, written and checked in one place.
 //!
-//! Every model file is self-contained JSON that opens with a [`Stamp`] (`format_version`,
-//! `method`); a fitted method's file goes on with the rest of its [`Header`] (`provenance`,
-//! `feature_config`, `feature_names`) and then its own fields. A method's file struct flattens
-//! the stamp or the header first (`#[serde(flatten)]`), so the JSON keeps this field order.
+//! Every model file is self-contained JSON that opens with its stamp (`format_version`,
+//! `method`): a method that wraps another's file writes a [`Stamp`], a fitted method a [`Header`]
+//! (the stamp, `provenance`, `feature_config`, `feature_names`), the evidential file the stamp,
+//! provenance and feature configuration (its names are its features'). A method's file struct
+//! flattens the stamp or header first (`#[serde(flatten)]`), so the JSON keeps this field order.
 //!
 //! Reading checks the stamp before anything else ([`check_stamp`]), so an old or foreign file is
 //! named as such rather than reported as a field-by-field mismatch; [`parse`] then refuses any
@@ -90,12 +91,14 @@ impl Stamp {
 }
 
 /// The header of a fitted method's file: its stamp, where the model came from and which
-/// features it reads.
+/// features it reads. (The stamp's fields are spelled out rather than flattened: serde leaves
+/// the fields of a flattened struct inside a flattened struct for the outer file to refuse.)
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Header {
-    /// Format version and method.
-    #[serde(flatten)]
-    pub stamp: Stamp,
+    /// Version of the method's file format.
+    pub format_version: u32,
+    /// The estimation method.
+    pub method: String,
     /// Where the model came from.
     pub provenance: Provenance,
     /// The features' settings, when the model was trained on extracted features.
