@@ -7,7 +7,8 @@ use evitrack::estimator::{
     KnnSettings, KnnWeights, Labelled, Method, PoseEstimate, PoseEstimator, TrainingSet,
 };
 use evitrack::experiment::Workbench;
-use evitrack::model::{ModelError, Provenance};
+use evitrack::model::ModelError;
+use evitrack::model_file::{ModelFileError, Provenance};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -569,7 +570,7 @@ fn corrupted_and_foreign_model_files_are_named() {
         assert!(
             matches!(
                 &error,
-                EstimatorError::Model(ModelError::WrongMethod { expected, .. }) if expected == method
+                EstimatorError::File(ModelFileError::WrongMethod { expected, .. }) if expected == method
             ),
             "{method}: {error}"
         );

@@ -16,7 +16,8 @@ use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
 use evitrack::estimator::{
     EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimate, PoseEstimator, TrainingSet,
 };
-use evitrack::model::{ModelSettings, Provenance, StateCounts};
+use evitrack::model::{ModelSettings, StateCounts};
+use evitrack::model_file::Provenance;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

@@ -5,8 +5,9 @@ use evitrack::evidence::Subset;
 use evitrack::hmm::{AssignmentRule, GaussianHmm, HmmSettings};
 use evitrack::model::{
     EvidentialModel, FeatureFrames, FeatureModel, ModelError, ModelParts, ModelSettings,
-    Provenance, StateCountTuner, StateCounts, TunerError, Tuning, FORMAT_VERSION,
+    StateCountTuner, StateCounts, TunerError, Tuning, FORMAT_VERSION,
 };
+use evitrack::model_file::{ModelFileError, Provenance};
 use evitrack::track::{GroupError, TrackSettings};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -342,7 +343,7 @@ fn removed_states_that_disagree_with_assignments_are_rejected_on_load() {
     let mut v3 = v;
     v3["features"][0]["states"][0] = serde_json::json!(7);
     let err = EvidentialModel::from_json(&v3.to_string()).unwrap_err();
-    assert!(matches!(err, ModelError::Corrupted(_)), "{err}");
+    assert!(matches!(err, ModelFileError::Corrupted(_)), "{err}");
 }
 
 #[test]
@@ -444,7 +445,7 @@ fn wrong_version_or_corrupted_file_is_a_clear_error() {
     let mut foreign = v.clone();
     foreign["method"] = serde_json::json!("knn");
     let err = EvidentialModel::from_json(&foreign.to_string()).unwrap_err();
-    assert!(matches!(err, ModelError::WrongMethod { .. }), "{err}");
+    assert!(matches!(err, ModelFileError::WrongMethod { .. }), "{err}");
     assert!(err.to_string().contains("`knn`"), "{err}");
     // A threshold that is not a level of conflict.
     let mut negative = v.clone();
@@ -455,7 +456,7 @@ fn wrong_version_or_corrupted_file_is_a_clear_error() {
     let mut future = v.clone();
     future["format_version"] = serde_json::json!(FORMAT_VERSION + 1);
     match EvidentialModel::from_json(&future.to_string()) {
-        Err(ModelError::UnsupportedVersion { found, supported }) => {
+        Err(ModelFileError::UnsupportedVersion { found, supported }) => {
             assert_eq!(found, (FORMAT_VERSION + 1).to_string());
             assert_eq!(supported, FORMAT_VERSION);
         }
@@ -465,11 +466,13 @@ fn wrong_version_or_corrupted_file_is_a_clear_error() {
     no_version.as_object_mut().unwrap().remove("format_version");
     assert!(matches!(
         EvidentialModel::from_json(&no_version.to_string()),
-        Err(ModelError::MissingVersion)
+        Err(ModelFileError::MissingVersion {
+            expected: FORMAT_VERSION
+        })
     ));
     // Truncated file.
     let err = EvidentialModel::from_json(&text[..text.len() / 2]).unwrap_err();
-    assert!(matches!(err, ModelError::Corrupted(_)), "{err}");
+    assert!(matches!(err, ModelFileError::Corrupted(_)), "{err}");
     // A negative variance is caught by HMM validation.
     let mut neg = v.clone();
     neg["features"][1]["hmm"]["variances"][0] = serde_json::json!(-1.0);
@@ -496,7 +499,7 @@ fn wrong_version_or_corrupted_file_is_a_clear_error() {
     assert!(err.to_string().contains("broken.json"), "{err}");
     assert!(matches!(
         EvidentialModel::load(dir.path().join("absent.json")),
-        Err(ModelError::Io { .. })
+        Err(ModelFileError::Io { .. })
     ));
 }
 

@@ -8,7 +8,7 @@ use evitrack::estimator::{load, EstimatorSettings, Labelled, Method, TrainingSet
 use evitrack::evidence::{
     dempster_all_within, EvidenceError, MassFunction, Subset, WorkLimit, WorkLimits,
 };
-use evitrack::model::Provenance;
+use evitrack::model_file::Provenance;
 use evitrack::scenario::{ScenarioSet, SeedList};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

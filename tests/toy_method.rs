@@ -10,7 +10,7 @@ use evitrack::estimator::{
     SettingsContext, TrainingSet,
 };
 use evitrack::features::FeatureConfig;
-use evitrack::model::{ModelError, Provenance};
+use evitrack::model_file::{self, Header, ModelFileError};
 use serde::{Deserialize, Serialize};
 
 const NAME: &str = "toy_nearest";
@@ -44,15 +44,12 @@ impl ToySettings {
     }
 }
 
-/// The fitted toy: the sample poses and their feature rows (its model file is itself).
+/// The fitted toy: the sample poses and their feature rows (its model file is itself, opened
+/// by the shared header).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 struct Toy {
-    format_version: u32,
-    method: String,
-    provenance: Provenance,
-    feature_config: Option<FeatureConfig>,
-    feature_names: Vec<String>,
+    #[serde(flatten)]
+    header: Header,
     scale: f64,
     poses: Vec<[f64; 2]>,
     rows: Vec<Vec<Option<f64>>>,
@@ -62,11 +59,13 @@ impl Toy {
     fn fit(settings: &EstimatorSettings, data: &TrainingSet) -> Result<Self, EstimatorError> {
         let toy = ToySettings::of(settings).map_err(EstimatorError::Training)?;
         Ok(Self {
-            format_version: 1,
-            method: NAME.into(),
-            provenance: data.provenance.clone(),
-            feature_config: data.feature_config.cloned(),
-            feature_names: data.feature_names.to_vec(),
+            header: Header {
+                format_version: 1,
+                method: NAME.into(),
+                provenance: data.provenance.clone(),
+                feature_config: data.feature_config.cloned(),
+                feature_names: data.feature_names.to_vec(),
+            },
             scale: toy.scale,
             poses: data.sample.poses.to_vec(),
             rows: data.sample.rows.to_vec(),
@@ -74,37 +73,11 @@ impl Toy {
     }
 
     fn load(path: &Path) -> Result<Self, EstimatorError> {
-        let named = |source: ModelError| -> EstimatorError {
-            ModelError::File {
-                path: path.to_path_buf(),
-                source: Box::new(source),
-            }
-            .into()
-        };
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| named(ModelError::Corrupted(e.to_string())))?;
-        let header: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| named(ModelError::Corrupted(e.to_string())))?;
-        match header.get("method").and_then(|m| m.as_str()) {
-            Some(NAME) => {}
-            found => {
-                return Err(named(ModelError::WrongMethod {
-                    found: found.unwrap_or("nothing").to_string(),
-                    expected: NAME,
-                }))
-            }
-        }
-        let toy: Toy =
-            serde_json::from_str(&text).map_err(|e| named(ModelError::Corrupted(e.to_string())))?;
-        if toy.format_version != 1 {
-            return Err(named(ModelError::UnsupportedVersion {
-                found: toy.format_version.to_string(),
-                supported: 1,
-            }));
-        }
-        toy.provenance
-            .check_poses("poses", &toy.poses)
-            .map_err(|e| named(ModelError::Corrupted(e)))?;
+        let toy = model_file::load(path, |text| {
+            let toy: Toy = model_file::parse(text, NAME, 1)?;
+            toy.header.provenance.check_poses("poses", &toy.poses)?;
+            Ok::<_, ModelFileError>(toy)
+        })?;
         Ok(toy)
     }
 }
@@ -115,17 +88,17 @@ impl PoseEstimator for Toy {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.feature_names
+        &self.header.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.feature_config.as_ref()
+        self.header.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        if features.len() != self.feature_names.len() {
+        if features.len() != self.header.feature_names.len() {
             return Err(EstimatorError::FeatureCount {
-                expected: self.feature_names.len(),
+                expected: self.header.feature_names.len(),
                 found: features.len(),
             });
         }
@@ -158,7 +131,7 @@ impl PoseEstimator for Toy {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        serde_json::to_string_pretty(self).map_err(|e| ModelError::Corrupted(e.to_string()).into())
+        Ok(model_file::to_text(self)?)
     }
 }
 

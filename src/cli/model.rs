@@ -15,7 +15,8 @@ use evitrack::estimator::{
     SettingsContext, TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
-use evitrack::model::{Provenance, StateCounts, Tuning};
+use evitrack::model::{StateCounts, Tuning};
+use evitrack::model_file::Provenance;
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
 use evitrack::scenario::{Scenario, ScenarioSet};
 use evitrack::track::{Estimator, SelectionPolicy, ThresholdRule, TrackSettings};

@@ -1,15 +1,14 @@
 //! The workspace-centre baseline (the error of knowing nothing: every frame gets the centre of the
-//! sample poses' bounding box), and the checks every baseline shares: training sets, frames and
-//! the model-file header.
+//! sample poses' bounding box).
 
 use std::path::Path;
 
-use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
+use super::inputs::{check_header_features, check_training, frame_values, training_header};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
-use crate::model::{ModelError, Provenance};
+use crate::model_file::{self, corrupted, Header};
 
 /// How the workspace-centre baseline is fitted: there is nothing to choose.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -41,11 +40,8 @@ pub struct Centre {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CentreFile {
-    format_version: u32,
-    method: String,
-    provenance: Provenance,
-    feature_config: Option<FeatureConfig>,
-    feature_names: Vec<String>,
+    #[serde(flatten)]
+    header: Header,
     settings: CentreSettings,
     /// Smallest x and y of the sample poses (mm).
     min: [f64; 2],
@@ -76,11 +72,7 @@ impl Centre {
             }
         }
         Ok(Self::new(CentreFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: data.provenance.clone(),
-            feature_config: data.feature_config.cloned(),
-            feature_names: data.feature_names.to_vec(),
+            header: training_header(Self::METHOD, Self::FORMAT_VERSION, data),
             settings: settings.clone(),
             min,
             max,
@@ -111,32 +103,31 @@ impl Centre {
     /// Reads a model file's text, checking the header, the features and the bounding box.
     ///
     /// # Errors
-    /// [`EstimatorError::Model`] naming what is wrong.
+    /// [`EstimatorError::File`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: CentreFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
-        check_features(&file.feature_names, file.feature_config.as_ref())
-            .map_err(|e| corrupted(e.to_string()))?;
+        let file: CentreFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        check_header_features(&file.header)?;
         for (k, axis) in ["x", "y"].iter().enumerate() {
             if !(file.min[k].is_finite() && file.max[k].is_finite()) {
-                return Err(corrupted(format!("`min` or `max` {axis} is not finite")));
+                return Err(corrupted(format!("`min` or `max` {axis} is not finite")).into());
             }
             if file.min[k] > file.max[k] {
-                return Err(corrupted(format!("`min` {axis} is above `max` {axis}")));
+                return Err(corrupted(format!("`min` {axis} is above `max` {axis}")).into());
             }
         }
-        file.provenance
-            .check_poses("min, max", &[file.min, file.max])
-            .map_err(corrupted)?;
+        file.header
+            .provenance
+            .check_poses("min, max", &[file.min, file.max])?;
         Ok(Self::new(file))
     }
 
     /// Reads a model file written from [`PoseEstimator::to_json`].
     ///
     /// # Errors
-    /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::Model`] naming the path
+    /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::File`] naming the path
     /// and what is wrong otherwise.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
+        Ok(model_file::load(path, Self::from_json)?)
     }
 }
 
@@ -146,15 +137,15 @@ impl PoseEstimator for Centre {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.file.feature_names
+        &self.file.header.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.file.feature_config.as_ref()
+        self.file.header.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (_, missing) = frame_values(features, self.file.feature_names.len())?;
+        let (_, missing) = frame_values(features, self.file.header.feature_names.len())?;
         Ok(PoseEstimate {
             detection_score: None,
             pose: Some(self.centre),
@@ -170,219 +161,6 @@ impl PoseEstimator for Centre {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
-    }
-}
-
-// ---- Shared by the baselines ----
-
-/// Checks what every baseline needs of a training set: feature names (at least one, unique,
-/// matching the feature configuration when there is one), at least one sample pose, all finite,
-/// and one row per pose with one value per feature.
-pub(super) fn check_training(data: &TrainingSet) -> Result<(), EstimatorError> {
-    check_features(data.feature_names, data.feature_config)?;
-    let (poses, rows) = (data.sample.poses, data.sample.rows);
-    if poses.is_empty() {
-        return Err(ModelError::NoSamples.into());
-    }
-    if let Some(index) = poses.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
-        return Err(ModelError::NonFinitePose {
-            index,
-            pose: poses[index],
-        }
-        .into());
-    }
-    if rows.len() != poses.len() {
-        return Err(ModelError::RowCount {
-            rows: rows.len(),
-            poses: poses.len(),
-        }
-        .into());
-    }
-    let expected = data.feature_names.len();
-    if let Some(row) = rows.iter().position(|r| r.len() != expected) {
-        return Err(ModelError::RowLength {
-            row,
-            expected,
-            got: rows[row].len(),
-        }
-        .into());
-    }
-    Ok(())
-}
-
-/// Feature names are at least one and unique, and the configuration (if any) names exactly them.
-pub(super) fn check_features(
-    names: &[String],
-    config: Option<&FeatureConfig>,
-) -> Result<(), EstimatorError> {
-    if names.is_empty() {
-        return Err(ModelError::NoFeatures.into());
-    }
-    let mut sorted: Vec<&String> = names.iter().collect();
-    sorted.sort();
-    if let Some(w) = sorted.windows(2).find(|w| w[0] == w[1]) {
-        return Err(ModelError::DuplicateFeature(w[0].clone()).into());
-    }
-    if let Some(config) = config {
-        let configured = config.check()?.names();
-        if configured != names {
-            return Err(ModelError::InvalidInput {
-                what: "feature configuration",
-                reason: format!(
-                    "it names the features {configured:?}, but the model has {names:?}"
-                ),
-            }
-            .into());
-        }
-    }
-    Ok(())
-}
-
-/// Indices of the samples whose every feature value is present and finite (the rows a method
-/// that needs every feature can use). Errors when there is none.
-pub(super) fn complete_samples(
-    data: &TrainingSet,
-    method: &str,
-) -> Result<Vec<usize>, EstimatorError> {
-    let kept: Vec<usize> = (0..data.sample.rows.len())
-        .filter(|&i| {
-            data.sample.rows[i]
-                .iter()
-                .all(|v| v.is_some_and(f64::is_finite))
-        })
-        .collect();
-    if kept.is_empty() {
-        return Err(EstimatorError::Training(format!(
-            "no sample has every feature value present and finite, and {method} drops samples with a missing value"
-        )));
-    }
-    Ok(kept)
-}
-
-/// A frame's values after the count check: non-finite values count as missing. Returns the
-/// values and the ascending indices of the missing ones.
-pub(super) fn frame_values(
-    features: &[Option<f64>],
-    expected: usize,
-) -> Result<(Vec<Option<f64>>, Vec<usize>), EstimatorError> {
-    if features.len() != expected {
-        return Err(EstimatorError::FeatureCount {
-            expected,
-            found: features.len(),
-        });
-    }
-    let values: Vec<Option<f64>> = features
-        .iter()
-        .map(|v| v.filter(|x| x.is_finite()))
-        .collect();
-    let missing = (0..expected).filter(|&i| values[i].is_none()).collect();
-    Ok((values, missing))
-}
-
-/// A corrupted-file error.
-pub(super) fn corrupted(what: impl Into<String>) -> EstimatorError {
-    ModelError::Corrupted(what.into()).into()
-}
-
-/// Serialises a model file.
-pub(super) fn write_file<T: Serialize>(file: &T) -> Result<String, EstimatorError> {
-    serde_json::to_string_pretty(file)
-        .map_err(|e| corrupted(format!("cannot serialise the model: {e}")))
-}
-
-/// Parses a model file of `method` at `version`: the header first (so a foreign or old file is
-/// named as such), then any `null` outside the provenance and feature configuration (a number
-/// that was not finite when written), then the typed fields.
-pub(super) fn parse_file<T: DeserializeOwned>(
-    text: &str,
-    method: &'static str,
-    version: u32,
-) -> Result<T, EstimatorError> {
-    let value: serde_json::Value =
-        serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))?;
-    let object = value
-        .as_object()
-        .ok_or_else(|| corrupted("the top level is not a JSON object"))?;
-    let found = object
-        .get("format_version")
-        .ok_or_else(|| corrupted(format!("no `format_version` field (expected {version})")))?;
-    if found.as_u64() != Some(u64::from(version)) {
-        return Err(ModelError::UnsupportedVersion {
-            found: found.to_string(),
-            supported: version,
-        }
-        .into());
-    }
-    match object.get("method").and_then(|m| m.as_str()) {
-        Some(m) if m == method => {}
-        Some(other) => {
-            return Err(ModelError::WrongMethod {
-                found: other.to_string(),
-                expected: method,
-            }
-            .into())
-        }
-        None => {
-            return Err(corrupted(
-                "no `method` field (a string naming the estimation method)",
-            ))
-        }
-    }
-    for (key, v) in object {
-        if key != "provenance" && key != "feature_config" {
-            if let Some(path) = find_null(v, key.clone()) {
-                return Err(corrupted(format!(
-                    "`{path}` is null: it must be a finite number"
-                )));
-            }
-        }
-    }
-    // Parsed again from the text so that errors carry line and column.
-    serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))
-}
-
-/// The path of the first `null` in `value`.
-fn find_null(value: &serde_json::Value, path: String) -> Option<String> {
-    match value {
-        serde_json::Value::Null => Some(path),
-        serde_json::Value::Array(items) => items
-            .iter()
-            .enumerate()
-            .find_map(|(i, v)| find_null(v, format!("{path}[{i}]"))),
-        serde_json::Value::Object(map) => map
-            .iter()
-            .find_map(|(k, v)| find_null(v, format!("{path}.{k}"))),
-        _ => None,
-    }
-}
-
-/// Reads a model file and parses it with `from_json`, naming the path in errors.
-pub(super) fn load_file<T>(
-    path: &Path,
-    from_json: impl FnOnce(&str) -> Result<T, EstimatorError>,
-) -> Result<T, EstimatorError> {
-    let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
-        path: path.display().to_string(),
-        source,
-    })?;
-    from_json(&text).map_err(|e| {
-        let source = match e {
-            EstimatorError::Model(m) => m,
-            other => ModelError::Corrupted(other.to_string()),
-        };
-        ModelError::File {
-            path: path.to_path_buf(),
-            source: Box::new(source),
-        }
-        .into()
-    })
-}
-
-/// Checks that every number of a fitted state is finite, naming the field otherwise.
-pub(super) fn check_finite(field: &str, values: &[f64]) -> Result<(), EstimatorError> {
-    match values.iter().position(|v| !v.is_finite()) {
-        Some(i) => Err(corrupted(format!("`{field}[{i}]` is not finite"))),
-        None => Ok(()),
+        Ok(model_file::to_text(&self.file)?)
     }
 }

@@ -20,14 +20,12 @@ use std::path::Path;
 use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
 
-use super::centre::{
-    check_features, check_finite, check_training, corrupted, frame_values, load_file, parse_file,
-    write_file,
-};
+use super::inputs::{check_header_features, check_training, frame_values, training_header};
 use super::knn::{check_samples, kept_samples, Standardisation};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
-use crate::model::{ModelError, Provenance};
+use crate::model::ModelError;
+use crate::model_file::{self, check_finite, corrupted, Header, Provenance};
 
 /// Bounds of the log hyperparameters (inputs and outputs are standardised, so these are wide):
 /// ℓ in 1e-2 ..= 1e3, σf in 1e-3 ..= 1e3, and σn/σf in 1e-6 ..= 10 (the floor keeps the kernel
@@ -137,11 +135,8 @@ struct Factor {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct GpFile {
-    format_version: u32,
-    method: String,
-    provenance: Provenance,
-    feature_config: Option<FeatureConfig>,
-    feature_names: Vec<String>,
+    #[serde(flatten)]
+    header: Header,
     settings: GpSettings,
     standardisation: Standardisation,
     /// Centring and scaling of the pose coordinates (x, y).
@@ -210,11 +205,7 @@ impl Gp {
             )
         })?;
         let file = GpFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: data.provenance.clone(),
-            feature_config: data.feature_config.cloned(),
-            feature_names: data.feature_names.to_vec(),
+            header: training_header(Self::METHOD, Self::FORMAT_VERSION, data),
             settings: settings.clone(),
             standardisation,
             output,
@@ -267,24 +258,24 @@ impl Gp {
     /// # Errors
     /// [`EstimatorError::Model`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: GpFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
-        let dim = file.feature_names.len();
-        check_features(&file.feature_names, file.feature_config.as_ref())
-            .map_err(|e| corrupted(e.to_string()))?;
+        let file: GpFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let dim = file.header.feature_names.len();
+        check_header_features(&file.header)?;
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
         file.standardisation.check(dim, "standardisation")?;
         file.output.check(2, "output")?;
-        file.provenance
-            .check_poses("sample_poses", &file.sample_poses)
-            .map_err(corrupted)?;
+        file.header
+            .provenance
+            .check_poses("sample_poses", &file.sample_poses)?;
         let h = &file.hyperparameters;
         if h.length_scales.len() != dim {
             return Err(corrupted(format!(
                 "`hyperparameters.length_scales` has {} values for {dim} features",
                 h.length_scales.len()
-            )));
+            ))
+            .into());
         }
         let named = (h.length_scales.iter().enumerate())
             .map(|(d, &v)| (format!("hyperparameters.length_scales[{d}]"), v))
@@ -294,14 +285,12 @@ impl Gp {
             ]);
         for (field, v) in named {
             if !(v.is_finite() && v > 0.0) {
-                return Err(corrupted(format!(
-                    "`{field}` is {v}, not a positive number"
-                )));
+                return Err(corrupted(format!("`{field}` is {v}, not a positive number")).into());
             }
         }
         check_finite("log_marginal_likelihood", &[file.log_marginal_likelihood])?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
-        Self::factor(file).map_err(corrupted)
+        Ok(Self::factor(file).map_err(corrupted)?)
     }
 
     /// Reads a model file written from [`PoseEstimator::to_json`].
@@ -310,7 +299,7 @@ impl Gp {
     /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::Model`] naming the path
     /// and what is wrong otherwise.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
+        Ok(model_file::load(path, Self::from_json)?)
     }
 
     /// Predictive mean (mm), the RMS over x and y of the predictive standard deviation (mm) and
@@ -363,15 +352,15 @@ impl PoseEstimator for Gp {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.file.feature_names
+        &self.file.header.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.file.feature_config.as_ref()
+        self.file.header.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (values, missing) = frame_values(features, self.file.feature_names.len())?;
+        let (values, missing) = frame_values(features, self.file.header.feature_names.len())?;
         let (pose, radius, nearest) = if missing.is_empty() {
             let values: Vec<f64> = values.iter().map(|v| v.unwrap_or(0.0)).collect();
             let (pose, std, nearest) = self.predict(&values);
@@ -394,12 +383,12 @@ impl PoseEstimator for Gp {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
+        Ok(model_file::to_text(&self.file)?)
     }
 
     fn with_provenance(&self, provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
         let mut copy = self.clone();
-        copy.file.provenance = provenance.clone();
+        copy.file.header.provenance = provenance.clone();
         Some(Box::new(copy))
     }
 }

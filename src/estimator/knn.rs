@@ -11,13 +11,13 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::centre::{
-    check_features, check_finite, check_training, complete_samples, corrupted, frame_values,
-    load_file, parse_file, write_file,
+use super::inputs::{
+    check_header_features, check_training, complete_samples, frame_values, training_header,
 };
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
-use crate::model::{ModelError, Provenance};
+use crate::model::ModelError;
+use crate::model_file::{self, check_finite, corrupted, Header};
 
 /// How the neighbours' poses are averaged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -120,12 +120,13 @@ impl Standardisation {
                 return Err(corrupted(format!(
                     "`{field}.{name}` has {} values where {dim} are expected",
                     values.len()
-                )));
+                ))
+                .into());
             }
             check_finite(&format!("{field}.{name}"), values)?;
         }
         if let Some(d) = self.scales.iter().position(|&s| s <= 0.0) {
-            return Err(corrupted(format!("`{field}.scales[{d}]` is not positive")));
+            return Err(corrupted(format!("`{field}.scales[{d}]` is not positive")).into());
         }
         Ok(())
     }
@@ -158,14 +159,15 @@ pub(super) fn check_samples(
     dim: usize,
 ) -> Result<(), EstimatorError> {
     if poses.is_empty() {
-        return Err(corrupted("`sample_poses` is empty"));
+        return Err(corrupted("`sample_poses` is empty").into());
     }
     if rows.len() != poses.len() {
         return Err(corrupted(format!(
             "`sample_features` has {} rows for {} sample poses",
             rows.len(),
             poses.len()
-        )));
+        ))
+        .into());
     }
     for (i, p) in poses.iter().enumerate() {
         check_finite(&format!("sample_poses[{i}]"), p)?;
@@ -175,7 +177,8 @@ pub(super) fn check_samples(
             return Err(corrupted(format!(
                 "`sample_features[{i}]` has {} values for {dim} features",
                 r.len()
-            )));
+            ))
+            .into());
         }
         check_finite(&format!("sample_features[{i}]"), r)?;
     }
@@ -199,11 +202,8 @@ pub struct Knn {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct KnnFile {
-    format_version: u32,
-    method: String,
-    provenance: Provenance,
-    feature_config: Option<FeatureConfig>,
-    feature_names: Vec<String>,
+    #[serde(flatten)]
+    header: Header,
     settings: KnnSettings,
     standardisation: Standardisation,
     /// The kept samples' poses (mm).
@@ -239,11 +239,7 @@ impl Knn {
             .into());
         }
         Ok(Self::new(KnnFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: data.provenance.clone(),
-            feature_config: data.feature_config.cloned(),
-            feature_names: data.feature_names.to_vec(),
+            header: training_header(Self::METHOD, Self::FORMAT_VERSION, data),
             settings: settings.clone(),
             standardisation: Standardisation::fit(&rows, data.feature_names.len()),
             sample_poses: poses,
@@ -276,7 +272,7 @@ impl Knn {
         &self,
         features: &[Option<f64>],
     ) -> Result<Vec<(usize, f64)>, EstimatorError> {
-        let dim = self.file.feature_names.len();
+        let dim = self.file.header.feature_names.len();
         let (values, missing) = frame_values(features, dim)?;
         if missing.len() == dim {
             return Ok(Vec::new());
@@ -316,24 +312,24 @@ impl Knn {
     /// # Errors
     /// [`EstimatorError::Model`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: KnnFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
-        let dim = file.feature_names.len();
-        check_features(&file.feature_names, file.feature_config.as_ref())
-            .map_err(|e| corrupted(e.to_string()))?;
+        let file: KnnFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let dim = file.header.feature_names.len();
+        check_header_features(&file.header)?;
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
         file.standardisation.check(dim, "standardisation")?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
-        file.provenance
-            .check_poses("sample_poses", &file.sample_poses)
-            .map_err(corrupted)?;
+        file.header
+            .provenance
+            .check_poses("sample_poses", &file.sample_poses)?;
         if file.settings.k > file.sample_poses.len() {
             return Err(corrupted(format!(
                 "`settings.k` is {} but there are {} samples",
                 file.settings.k,
                 file.sample_poses.len()
-            )));
+            ))
+            .into());
         }
         Ok(Self::new(file))
     }
@@ -344,7 +340,7 @@ impl Knn {
     /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::Model`] naming the path
     /// and what is wrong otherwise.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
+        Ok(model_file::load(path, Self::from_json)?)
     }
 }
 
@@ -354,15 +350,15 @@ impl PoseEstimator for Knn {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.file.feature_names
+        &self.file.header.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.file.feature_config.as_ref()
+        self.file.header.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (_, missing) = frame_values(features, self.file.feature_names.len())?;
+        let (_, missing) = frame_values(features, self.file.header.feature_names.len())?;
         let neighbours = self.neighbours(features)?;
         let weights: Vec<f64> = match self.file.settings.weights {
             KnnWeights::Uniform => vec![1.0; neighbours.len()],
@@ -408,7 +404,7 @@ impl PoseEstimator for Knn {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
+        Ok(model_file::to_text(&self.file)?)
     }
 }
 

@@ -11,6 +11,7 @@ mod centre;
 mod continuous;
 mod evidential;
 mod gp;
+mod inputs;
 mod knn;
 mod particle;
 mod refine;
@@ -42,7 +43,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::Dataset;
 use crate::features::{FeatureConfig, FeatureError, FeatureRows, FeatureSet};
-use crate::model::{ModelError, Provenance};
+use crate::model::ModelError;
+use crate::model_file::{ModelFileError, Provenance};
 use crate::track::TrackError;
 
 /// Failures of fitting, loading or running an estimator.
@@ -52,6 +54,9 @@ pub enum EstimatorError {
     /// Training or loading the evidential model failed.
     #[error(transparent)]
     Model(#[from] ModelError),
+    /// A model file cannot be read: its format, method or a field (the path, when loaded).
+    #[error(transparent)]
+    File(ModelFileError),
     /// Building or running the evidential tracker failed.
     #[error("tracker: {0}")]
     Track(#[from] TrackError),
@@ -422,22 +427,19 @@ pub(crate) fn bounding_box(poses: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
 /// (`evidential` when absent, so that old evidential files are named as such).
 ///
 /// # Errors
-/// [`EstimatorError::Io`] when the file cannot be read; [`EstimatorError::Model`] naming the
+/// [`EstimatorError::Io`] when the file cannot be read; [`EstimatorError::File`] naming the
 /// path and what is wrong (format version, method, a field) otherwise.
 pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
-    let text = std::fs::read_to_string(path).map_err(|source| EstimatorError::Io {
-        path: path.display().to_string(),
-        source,
-    })?;
+    let text = crate::model_file::read_text(path)?;
     let name = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
         .and_then(|v| v.get("method")?.as_str().map(String::from))
         .unwrap_or_else(|| crate::model::METHOD.to_string());
     match Method::from_name(&name) {
         Some(method) => (method.entry().load)(path),
-        None => Err(ModelError::File {
+        None => Err(ModelFileError::File {
             path: path.to_path_buf(),
-            source: Box::new(ModelError::Corrupted(format!(
+            source: Box::new(crate::model_file::corrupted(format!(
                 "unknown method `{name}`: this build reads {} model files",
                 Method::names_sentence()
             ))),

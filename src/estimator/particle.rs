@@ -22,13 +22,14 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::centre::{corrupted, frame_values, load_file, parse_file, write_file};
+use super::inputs::frame_values;
 use super::velocity::VelocityLine;
 use super::{
     Continuous, ContinuousSettings, EstimateFlags, EstimatorError, MotionTracker, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,
 };
 use crate::features::FeatureConfig;
+use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
 
 /// The particle filter's own settings (`[particle_filter]` in scenarios).
@@ -88,8 +89,8 @@ pub struct ParticleFilter {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ParticleFile {
-    format_version: u32,
-    method: String,
+    #[serde(flatten)]
+    stamp: Stamp,
     settings: ParticleSettings,
     /// The motion model's reach per second (mm/s), `temporal.max_speed`.
     max_speed: f64,
@@ -138,8 +139,7 @@ impl ParticleFilter {
         settings.check()?;
         motion.check()?;
         let file = ParticleFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.into(),
+            stamp: Stamp::new(Self::METHOD, Self::FORMAT_VERSION),
             settings: settings.clone(),
             max_speed: motion.max_speed,
             velocity_frames: motion.velocity_frames,
@@ -152,9 +152,9 @@ impl ParticleFilter {
     /// Reads a model file's text.
     ///
     /// # Errors
-    /// [`EstimatorError::Model`] naming what is wrong.
+    /// [`EstimatorError::File`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: ParticleFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let file: ParticleFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
         file.settings
             .check()
             .and_then(|()| {
@@ -166,7 +166,9 @@ impl ParticleFilter {
             })
             .map_err(|e| corrupted(format!("settings: {e}")))?;
         let maps = Continuous::from_json(&file.feature_maps).map_err(|e| match e {
-            EstimatorError::Model(m) => corrupted(format!("feature_maps: {m}")),
+            e @ (EstimatorError::Model(_) | EstimatorError::File(_)) => {
+                corrupted(format!("feature_maps: {e}")).into()
+            }
             other => other,
         })?;
         Ok(Self { maps, file })
@@ -177,7 +179,7 @@ impl ParticleFilter {
     /// # Errors
     /// As [`ParticleFilter::from_json`], naming the path.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
+        Ok(model_file::load(path, Self::from_json)?)
     }
 
     /// log p(features | q) with the frame's usable `values`.
@@ -221,7 +223,7 @@ impl PoseEstimator for ParticleFilter {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
+        Ok(model_file::to_text(&self.file)?)
     }
 
     fn start_motion(&self) -> Box<dyn MotionTracker + '_> {

@@ -26,7 +26,6 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::centre::{corrupted, load_file, parse_file, write_file};
 use super::evidential::pose_estimate;
 use super::refine::Refinement;
 use super::velocity::VelocityLine;
@@ -36,6 +35,7 @@ use super::{
 };
 use crate::features::FeatureConfig;
 use crate::model::EvidentialModel;
+use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
 use crate::report::distance;
 use crate::track::{Estimator, SelectionPolicy};
@@ -148,8 +148,8 @@ pub struct TemporalEvidential {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TemporalFile {
-    format_version: u32,
-    method: String,
+    #[serde(flatten)]
+    stamp: Stamp,
     settings: TemporalSettings,
     reliability: f64,
     reliability_learned: bool,
@@ -201,8 +201,7 @@ impl TemporalEvidential {
         reliability_learned: bool,
     ) -> Result<Self, EstimatorError> {
         let file = TemporalFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.into(),
+            stamp: Stamp::new(Self::METHOD, Self::FORMAT_VERSION),
             settings,
             reliability,
             reliability_learned,
@@ -238,9 +237,9 @@ impl TemporalEvidential {
     /// Reads a model file's text.
     ///
     /// # Errors
-    /// [`EstimatorError::Model`] naming what is wrong.
+    /// [`EstimatorError::File`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: TemporalFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let file: TemporalFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
         file.settings
             .check()
             .map_err(|e| corrupted(format!("settings: {e}")))?;
@@ -251,7 +250,8 @@ impl TemporalEvidential {
         if let SelectionPolicy::Splitting { .. } = inner.model().track_settings().selection {
             return Err(corrupted(
                 "evidential_model: the splitting policy is not taken with the past",
-            ));
+            )
+            .into());
         }
         Ok(Self::assemble(inner, file))
     }
@@ -261,7 +261,7 @@ impl TemporalEvidential {
     /// # Errors
     /// As [`TemporalEvidential::from_json`], naming the path.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
+        Ok(model_file::load(path, Self::from_json)?)
     }
 }
 
@@ -284,7 +284,7 @@ impl PoseEstimator for TemporalEvidential {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
+        Ok(model_file::to_text(&self.file)?)
     }
 
     fn start_motion(&self) -> Box<dyn MotionTracker + '_> {

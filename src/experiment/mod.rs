@@ -20,7 +20,7 @@ use std::time::Instant;
 use crate::estimator::{EstimatorError, Evidential, Labelled, PoseEstimator, TrainingSet};
 use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
-use crate::model::Provenance;
+use crate::model_file::Provenance;
 use crate::report::{
     ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, MethodTimings, RunSummary, Timings,
 };

@@ -100,9 +100,10 @@ impl FeatureModel {
     ) -> Result<Self, ModelError> {
         let k = hmm.n_states();
         if let Some(&s) = states.iter().find(|&&s| s >= k) {
-            return Err(ModelError::Corrupted(format!(
+            return Err(crate::model_file::corrupted(format!(
                 "feature `{name}`: state {s} assigned to a sample, but the HMM has {k} states"
-            )));
+            ))
+            .into());
         }
         let mut used = vec![false; k];
         for &s in &states {

@@ -31,13 +31,12 @@ pub use frames::{FeatureFrames, StateCountTuner, TunerError};
 pub use persist::{FORMAT_VERSION, METHOD};
 pub use settings::{ModelSettings, StateCounts, Tuning, MAX_STATES};
 
-use crate::dataset::{check_position, Rect};
 use crate::evidence::EvidenceError;
 use crate::features::FeatureConfig;
 use crate::hmm::HmmError;
+use crate::model_file::ModelFileError;
+use crate::model_file::Provenance;
 use crate::track::{GroupError, TrackSettings};
-use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
 use thiserror::Error;
 
 /// Errors of model training, use, and persistence.
@@ -143,91 +142,9 @@ pub enum ModelError {
         /// What is wrong.
         reason: String,
     },
-    /// A model file has no `format_version` field.
-    #[error("not a model file: no `format_version` field (expected {FORMAT_VERSION})")]
-    MissingVersion,
-    /// A model file is of another estimation method.
-    #[error("the model file is for method `{found}`, not `{expected}`")]
-    WrongMethod {
-        /// Method in the file.
-        found: String,
-        /// Method this reader handles.
-        expected: &'static str,
-    },
-    /// A model file has a format version this build cannot read.
-    #[error("model file format version {found} is not supported (this build reads version {supported}); retrain the model or use a matching evitrack")]
-    UnsupportedVersion {
-        /// Version in the file.
-        found: String,
-        /// Version this build reads.
-        supported: u32,
-    },
-    /// A model file is not valid JSON or does not describe a valid model.
-    #[error("corrupted model file: {0}")]
-    Corrupted(String),
-    /// Reading or writing a model file failed.
-    #[error("model file {path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
-    /// Loading a model file failed (the path, then the reason).
-    #[error("model file {path}: {source}")]
-    File {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong with it.
-        source: Box<ModelError>,
-    },
-}
-
-/// Where a model came from: the crate that trained it and the run that asked for it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Provenance {
-    /// Version of evitrack that trained the model.
-    pub crate_version: String,
-    /// Scenario (variant) name, when a scenario run trained it.
-    pub scenario: Option<String>,
-    /// The run's master seed (or the training seed given to `train`).
-    pub seed: u64,
-    /// The workspace (mm) of the rig the model was trained on, when known: the model's poses are
-    /// checked against it on load.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub workspace: Option<Rect>,
-}
-
-impl Provenance {
-    /// This build's version, with the run's scenario name and seed; no workspace.
-    pub fn new(scenario: Option<String>, seed: u64) -> Self {
-        Self {
-            crate_version: env!("CARGO_PKG_VERSION").to_string(),
-            scenario,
-            seed,
-            workspace: None,
-        }
-    }
-
-    /// With the workspace of the rig the training data comes from.
-    pub fn with_workspace(self, workspace: Option<Rect>) -> Self {
-        Self { workspace, ..self }
-    }
-
-    /// Why `poses` (the model's `what`) cannot be poses of the model's rig: the first one that
-    /// [`check_position`] refuses against the declared workspace (and the workspace itself, when
-    /// it is malformed).
-    pub fn check_poses(&self, what: &str, poses: &[[f64; 2]]) -> Result<(), String> {
-        if let Some(w) = &self.workspace {
-            w.check().map_err(|e| format!("provenance: {e}"))?;
-        }
-        for (i, &p) in poses.iter().enumerate() {
-            check_position(p, self.workspace.as_ref())
-                .map_err(|e| format!("`{what}[{i}]`: {e}"))?;
-        }
-        Ok(())
-    }
+    /// Reading, checking or writing a model file failed.
+    #[error(transparent)]
+    File(#[from] ModelFileError),
 }
 
 /// Everything a complete [`EvidentialModel`] is made of, for [`EvidentialModel::new`].

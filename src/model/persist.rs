@@ -12,9 +12,10 @@
 //! settings, no provenance) are refused with a message saying so.
 
 use super::frames::{check_names, check_poses};
-use super::{EvidentialModel, FeatureFrames, FeatureModel, ModelError, ModelParts, Provenance};
+use super::{EvidentialModel, FeatureFrames, FeatureModel, ModelError, ModelParts};
 use crate::features::FeatureConfig;
 use crate::hmm::GaussianHmm;
+use crate::model_file::{self, corrupted, ModelFileError, Provenance, Stamp};
 use crate::track::{GroupError, TrackSettings};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -25,11 +26,13 @@ pub const FORMAT_VERSION: u32 = 2;
 /// The `method` field of an evidential model file.
 pub const METHOD: &str = "evidential";
 
+/// The file: its stamp, provenance and feature configuration first; the names are the
+/// features' own.
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ModelFile {
-    format_version: u32,
-    method: String,
+    #[serde(flatten)]
+    stamp: Stamp,
     provenance: Provenance,
     feature_config: Option<FeatureConfig>,
     track: TrackSettings,
@@ -54,40 +57,12 @@ struct FeatureRecord {
     imputed: Vec<usize>,
 }
 
-/// Reads `format_version` and `method` first, so an old or foreign file is named as such rather
-/// than reported as a field-by-field mismatch.
-pub(crate) fn check_header(value: &serde_json::Value) -> Result<(), ModelError> {
-    let object = value
-        .as_object()
-        .ok_or_else(|| ModelError::Corrupted("the top level is not a JSON object".into()))?;
-    let version = object
-        .get("format_version")
-        .ok_or(ModelError::MissingVersion)?;
-    if version.as_u64() != Some(u64::from(FORMAT_VERSION)) {
-        return Err(ModelError::UnsupportedVersion {
-            found: version.to_string(),
-            supported: FORMAT_VERSION,
-        });
-    }
-    match object.get("method").and_then(|m| m.as_str()) {
-        Some(METHOD) => Ok(()),
-        Some(other) => Err(ModelError::WrongMethod {
-            found: other.to_string(),
-            expected: METHOD,
-        }),
-        None => Err(ModelError::Corrupted(
-            "no `method` field (a string naming the estimation method)".into(),
-        )),
-    }
-}
-
 impl EvidentialModel {
     /// The model as versioned JSON text.
-    pub fn to_json(&self) -> Result<String, ModelError> {
+    pub fn to_json(&self) -> Result<String, ModelFileError> {
         let parts = self.parts();
         let file = ModelFile {
-            format_version: FORMAT_VERSION,
-            method: METHOD.to_string(),
+            stamp: Stamp::new(METHOD, FORMAT_VERSION),
             provenance: parts.provenance.clone(),
             feature_config: parts.feature_config.clone(),
             track: parts.track.clone(),
@@ -111,26 +86,19 @@ impl EvidentialModel {
                 })
                 .collect(),
         };
-        serde_json::to_string_pretty(&file)
-            .map_err(|e| ModelError::Corrupted(format!("cannot serialise the model: {e}")))
+        model_file::to_text(&file)
     }
 
     /// Reads a model from JSON text, checking the format version and method first, then every
     /// part: HMM parameters, one state per sample pose, removed states, refinings, tracker
     /// settings, feature configuration and validation errors.
-    pub fn from_json(text: &str) -> Result<Self, ModelError> {
-        let value: serde_json::Value =
-            serde_json::from_str(text).map_err(|e| ModelError::Corrupted(e.to_string()))?;
-        check_header(&value)?;
-        // Parsed again from the text so that errors carry line and column.
-        let file: ModelFile =
-            serde_json::from_str(text).map_err(|e| ModelError::Corrupted(e.to_string()))?;
-        check_poses(&file.sample_poses).map_err(|e| ModelError::Corrupted(e.to_string()))?;
+    pub fn from_json(text: &str) -> Result<Self, ModelFileError> {
+        let file: ModelFile = model_file::parse_with_nulls(text, METHOD, FORMAT_VERSION)?;
+        check_poses(&file.sample_poses).map_err(|e| corrupted(e.to_string()))?;
         file.provenance
-            .check_poses("sample_poses", &file.sample_poses)
-            .map_err(ModelError::Corrupted)?;
+            .check_poses("sample_poses", &file.sample_poses)?;
         if file.features.is_empty() {
-            return Err(ModelError::Corrupted("the model has no features".into()));
+            return Err(corrupted("the model has no features"));
         }
         let n = file.sample_poses.len();
         let mut features = Vec::with_capacity(file.features.len());
@@ -138,7 +106,7 @@ impl EvidentialModel {
             features.push(feature_from_record(r, n)?);
         }
         let names: Vec<String> = features.iter().map(|f| f.name.clone()).collect();
-        check_names(&names).map_err(|e| ModelError::Corrupted(e.to_string()))?;
+        check_names(&names).map_err(|e| corrupted(e.to_string()))?;
         let frames = FeatureFrames {
             sample_poses: file.sample_poses,
             features,
@@ -152,35 +120,23 @@ impl EvidentialModel {
             group_errors: file.group_errors,
             provenance: file.provenance,
         })
-        .map_err(|e| ModelError::Corrupted(e.to_string()))
+        .map_err(|e| corrupted(e.to_string()))
     }
 
     /// Writes the model to `path` as versioned JSON.
-    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), ModelError> {
-        let path = path.as_ref();
-        crate::atomic::write(path, self.to_json()?.as_bytes()).map_err(|source| ModelError::Io {
-            path: path.to_path_buf(),
-            source,
-        })
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<(), ModelFileError> {
+        model_file::write_text(path.as_ref(), &self.to_json()?)
     }
 
     /// Reads and validates a model file written by [`EvidentialModel::save`].
-    pub fn load(path: impl AsRef<Path>) -> Result<Self, ModelError> {
-        let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::from_json(&text).map_err(|e| ModelError::File {
-            path: path.to_path_buf(),
-            source: Box::new(e),
-        })
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ModelFileError> {
+        model_file::load(path.as_ref(), Self::from_json)
     }
 }
 
 /// One feature of a model file, checked against the `n` sample poses.
-fn feature_from_record(r: FeatureRecord, n: usize) -> Result<FeatureModel, ModelError> {
-    let bad = |what: String| ModelError::Corrupted(format!("feature `{}`: {what}", r.name));
+fn feature_from_record(r: FeatureRecord, n: usize) -> Result<FeatureModel, ModelFileError> {
+    let bad = |what: String| corrupted(format!("feature `{}`: {what}", r.name));
     if r.states.len() != n {
         return Err(bad(format!(
             "{} states for {n} sample poses",
@@ -216,11 +172,11 @@ fn feature_from_record(r: FeatureRecord, n: usize) -> Result<FeatureModel, Model
         r.imputed,
     )
     .map_err(|e| match e {
-        ModelError::Corrupted(_) => e,
-        other => ModelError::Corrupted(other.to_string()),
+        ModelError::File(f) => f,
+        other => corrupted(other.to_string()),
     })?;
     if model.removed_states != removed {
-        return Err(ModelError::Corrupted(format!(
+        return Err(corrupted(format!(
             "feature `{name}`: removed_states {removed:?} disagree with the states assigned to samples (unused: {:?})",
             model.removed_states
         )));

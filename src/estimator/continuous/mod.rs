@@ -19,12 +19,12 @@
 //! A frame whose chosen group cannot fix a pose (one feature: a level curve, not a point) has no
 //! bounded region (`region` and `uncertainty_radius` are `None`).
 
+mod file;
 mod frame;
 mod surrogate;
 mod temporal;
 
 use crate::range::within;
-use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
@@ -36,19 +36,18 @@ pub use surrogate::SurrogateHyperparameters;
 pub const MAX_CONTINUOUS_FEATURES: usize = 16;
 
 use super::bounding_box;
-use super::centre::{
-    check_features, check_finite, check_training, corrupted, frame_values, load_file, parse_file,
-    write_file,
-};
-use super::knn::{check_samples, kept_samples, Standardisation};
+use super::inputs::{check_training, frame_values, training_header};
+use super::knn::{kept_samples, Standardisation};
 use super::{
     EstimateFlags, EstimatorError, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet,
 };
 use crate::evidence::ConflictLevel;
 use crate::features::FeatureConfig;
-use crate::model::{ModelError, Provenance};
+use crate::model::ModelError;
+use crate::model_file::{self, Provenance};
 use crate::report::distance;
 use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
+use file::ContinuousFile;
 use frame::{members, Frame};
 use surrogate::{fit_hyperparameters, Surrogate};
 pub use temporal::ContinuousTemporal;
@@ -136,33 +135,6 @@ impl ContinuousSettings {
             })?;
         Ok(())
     }
-}
-
-/// The model file, and the fitted state.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ContinuousFile {
-    format_version: u32,
-    method: String,
-    provenance: Provenance,
-    feature_config: Option<FeatureConfig>,
-    feature_names: Vec<String>,
-    settings: ContinuousSettings,
-    pose_standardisation: Standardisation,
-    feature_standardisation: Standardisation,
-    /// One per feature.
-    hyperparameters: Vec<SurrogateHyperparameters>,
-    /// σ_i of each feature (raw units) and where it came from (`validation` or `leave_one_out`).
-    residual_scales: Vec<f64>,
-    residual_source: String,
-    /// The threshold the tracker applies, and whether it was learned.
-    conflict_threshold: ConflictLevel,
-    threshold_learned: bool,
-    /// The region holds the poses with χ²(q) − χ²(q̂) ≤ this (−2 log of the plausibility level).
-    region_chi2: f64,
-    /// The kept samples' poses (mm) and raw feature values.
-    sample_poses: Vec<[f64; 2]>,
-    sample_features: Vec<Vec<f64>>,
 }
 
 /// The continuous evidential tracker, fitted (see the module documentation).
@@ -254,11 +226,7 @@ impl Continuous {
             .map(|(&s, &scale): (&f64, &f64)| s.max(1e-9 * scale))
             .collect();
         let file = ContinuousFile {
-            format_version: Self::FORMAT_VERSION,
-            method: Self::METHOD.to_string(),
-            provenance: data.provenance.clone(),
-            feature_config: data.feature_config.cloned(),
-            feature_names: data.feature_names.to_vec(),
+            header: training_header(Self::METHOD, Self::FORMAT_VERSION, data),
             settings: settings.clone(),
             pose_standardisation,
             feature_standardisation,
@@ -453,12 +421,14 @@ impl Continuous {
         features: &[Option<f64>],
         group: &[usize],
     ) -> Result<Option<(Frame<'_>, crate::track::GroupMask)>, EstimatorError> {
-        let (values, _) = frame_values(features, self.file.feature_names.len())?;
+        let (values, _) = frame_values(features, self.file.header.feature_names.len())?;
         let frame = Frame::new(self, self.usable(values));
         let mask = group
             .iter()
             .fold(0, |m: crate::track::GroupMask, &i| m | 1 << i.min(63));
-        let known = group.iter().all(|&i| i < self.file.feature_names.len());
+        let known = group
+            .iter()
+            .all(|&i| i < self.file.header.feature_names.len());
         Ok((known && !group.is_empty() && mask & !frame.usable_mask == 0).then_some((frame, mask)))
     }
 
@@ -468,101 +438,6 @@ impl Continuous {
             .map(|(i, v)| v.filter(|_| self.file.residual_scales[i] > 0.0))
             .collect()
     }
-
-    /// Reads a model file's text, checking every field, then factors the kernel matrix as
-    /// fitting did.
-    ///
-    /// # Errors
-    /// [`EstimatorError::Model`] naming what is wrong.
-    pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: ContinuousFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
-        let dim = file.feature_names.len();
-        check_features(&file.feature_names, file.feature_config.as_ref())
-            .map_err(|e| corrupted(e.to_string()))?;
-        if dim > MAX_CONTINUOUS_FEATURES {
-            return Err(corrupted(format!(
-                "{dim} features: the continuous tracker takes at most {MAX_CONTINUOUS_FEATURES}"
-            )));
-        }
-        file.settings
-            .check()
-            .map_err(|e| corrupted(format!("`settings`: {e}")))?;
-        file.pose_standardisation.check(2, "pose_standardisation")?;
-        file.provenance
-            .check_poses("sample_poses", &file.sample_poses)
-            .map_err(corrupted)?;
-        file.feature_standardisation
-            .check(dim, "feature_standardisation")?;
-        if file.hyperparameters.len() != dim {
-            return Err(corrupted(format!(
-                "`hyperparameters` has {} entries for {dim} features",
-                file.hyperparameters.len()
-            )));
-        }
-        let mut named = vec![("region_chi2".to_string(), file.region_chi2)];
-        for (i, h) in file.hyperparameters.iter().enumerate() {
-            named.extend([
-                (
-                    format!("hyperparameters[{i}].length_scales[0]"),
-                    h.length_scales[0],
-                ),
-                (
-                    format!("hyperparameters[{i}].length_scales[1]"),
-                    h.length_scales[1],
-                ),
-                (format!("hyperparameters[{i}].signal_std"), h.signal_std),
-                (format!("hyperparameters[{i}].noise_std"), h.noise_std),
-            ]);
-        }
-        for (field, v) in named {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(corrupted(format!(
-                    "`{field}` is {v}, not a positive number"
-                )));
-            }
-        }
-        if file.residual_scales.len() != dim {
-            return Err(corrupted(format!(
-                "`residual_scales` has {} values for {dim} features",
-                file.residual_scales.len()
-            )));
-        }
-        if let Some(i) = (file.residual_scales.iter()).position(|s| !(s.is_finite() && *s >= 0.0)) {
-            return Err(corrupted(format!(
-                "`residual_scales[{i}]` is not a finite number ≥ 0"
-            )));
-        }
-        if !file.conflict_threshold.is_valid() {
-            return Err(corrupted(
-                "`conflict_threshold` must be a number ≥ 0 or \"inf\"",
-            ));
-        }
-        let likelihoods: Vec<f64> = (file.hyperparameters.iter())
-            .map(|h| h.log_marginal_likelihood)
-            .collect();
-        check_finite("hyperparameters[].log_marginal_likelihood", &likelihoods)?;
-        check_samples(&file.sample_poses, &file.sample_features, dim)?;
-        let surrogate = Surrogate::new(
-            file.pose_standardisation.clone(),
-            file.feature_standardisation.clone(),
-            &file.hyperparameters,
-            &file.sample_poses,
-            &file.sample_features,
-            file.settings.grid_spacing,
-            false,
-        )
-        .map_err(corrupted)?;
-        Ok(Self::assemble(file, surrogate))
-    }
-
-    /// Reads a model file written from [`PoseEstimator::to_json`].
-    ///
-    /// # Errors
-    /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::Model`] naming the path
-    /// and what is wrong otherwise.
-    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
-    }
 }
 
 impl PoseEstimator for Continuous {
@@ -571,15 +446,15 @@ impl PoseEstimator for Continuous {
     }
 
     fn feature_names(&self) -> &[String] {
-        &self.file.feature_names
+        &self.file.header.feature_names
     }
 
     fn feature_config(&self) -> Option<&FeatureConfig> {
-        self.file.feature_config.as_ref()
+        self.file.header.feature_config.as_ref()
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        let (values, missing) = frame_values(features, self.file.feature_names.len())?;
+        let (values, missing) = frame_values(features, self.file.header.feature_names.len())?;
         let mut frame = Frame::new(self, self.usable(values));
         let usable = frame.usable_mask;
         let mut estimate = PoseEstimate {
@@ -630,12 +505,12 @@ impl PoseEstimator for Continuous {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
+        Ok(model_file::to_text(&self.file)?)
     }
 
     fn with_provenance(&self, provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
         let mut copy = self.clone();
-        copy.file.provenance = provenance.clone();
+        copy.file.header.provenance = provenance.clone();
         Some(Box::new(copy))
     }
 }

@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use super::frame::{members, Frame, PastTerm};
 use super::Continuous;
-use crate::estimator::centre::{corrupted, frame_values, load_file, parse_file, write_file};
+use crate::estimator::inputs::frame_values;
 use crate::estimator::temporal::{learned_reliability, validation_error, DEFAULT_RELIABILITY};
 use crate::estimator::velocity::VelocityLine;
 use crate::estimator::{
@@ -27,6 +27,7 @@ use crate::estimator::{
     PoseEstimator, TemporalSettings, TrainingSet,
 };
 use crate::features::FeatureConfig;
+use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
 use crate::track::{group_beside_past, past_outweighs, GroupMask};
 
@@ -40,8 +41,8 @@ pub struct ContinuousTemporal {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ContinuousTemporalFile {
-    format_version: u32,
-    method: String,
+    #[serde(flatten)]
+    stamp: Stamp,
     settings: TemporalSettings,
     reliability: f64,
     reliability_learned: bool,
@@ -76,8 +77,7 @@ impl ContinuousTemporal {
         let inner = Continuous::fit(continuous, data)?;
         let mut fitted = Self {
             file: ContinuousTemporalFile {
-                format_version: Self::FORMAT_VERSION,
-                method: Self::METHOD.into(),
+                stamp: Stamp::new(Self::METHOD, Self::FORMAT_VERSION),
                 settings: settings.clone(),
                 reliability: DEFAULT_RELIABILITY,
                 reliability_learned: false,
@@ -104,15 +104,18 @@ impl ContinuousTemporal {
     /// Reads a model file's text.
     ///
     /// # Errors
-    /// [`EstimatorError::Model`] naming what is wrong.
+    /// [`EstimatorError::File`] naming what is wrong.
     pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
-        let file: ContinuousTemporalFile = parse_file(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        let file: ContinuousTemporalFile =
+            model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
         file.settings
             .check()
             .map_err(|e| corrupted(format!("settings: {e}")))?;
         within(file.reliability, 0.0..=1.0).map_err(|e| corrupted(format!("reliability: {e}")))?;
         let inner = Continuous::from_json(&file.continuous_model).map_err(|e| match e {
-            EstimatorError::Model(m) => corrupted(format!("continuous_model: {m}")),
+            e @ (EstimatorError::Model(_) | EstimatorError::File(_)) => {
+                corrupted(format!("continuous_model: {e}")).into()
+            }
             other => other,
         })?;
         Ok(Self { inner, file })
@@ -123,7 +126,7 @@ impl ContinuousTemporal {
     /// # Errors
     /// As [`ContinuousTemporal::from_json`], naming the path.
     pub fn load(path: &Path) -> Result<Self, EstimatorError> {
-        load_file(path, Self::from_json)
+        Ok(model_file::load(path, Self::from_json)?)
     }
 }
 
@@ -146,7 +149,7 @@ impl PoseEstimator for ContinuousTemporal {
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
-        write_file(&self.file)
+        Ok(model_file::to_text(&self.file)?)
     }
 
     fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
@@ -197,7 +200,7 @@ impl MotionTracker for ContinuousMotion<'_> {
             if let Some(pose) = estimate.pose {
                 let mut frame = Frame::new(
                     model,
-                    model.usable(frame_values(features, model.file.feature_names.len())?.0),
+                    model.usable(frame_values(features, model.file.header.feature_names.len())?.0),
                 );
                 let group = estimate
                     .group
@@ -213,7 +216,7 @@ impl MotionTracker for ContinuousMotion<'_> {
             return Ok(estimate);
         };
         let settings = &self.estimator.file.settings;
-        let (values, missing) = frame_values(features, model.file.feature_names.len())?;
+        let (values, missing) = frame_values(features, model.file.header.feature_names.len())?;
         let shift = self.line.shift(time - last.time);
         let past = PastTerm {
             centre: [last.pose[0] + shift[0], last.pose[1] + shift[1]],
@@ -242,7 +245,7 @@ impl MotionTracker for ContinuousMotion<'_> {
         }
         let alone = frame.select();
         let past_bit = frame.past_bit();
-        let features = model.file.feature_names.len();
+        let features = model.file.header.feature_names.len();
         let (with_past, _) = group_beside_past(
             &mut frame,
             usable,
