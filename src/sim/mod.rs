@@ -13,11 +13,13 @@
 mod camera;
 mod geometry;
 mod motion;
+mod path;
 mod robot;
 
 pub use camera::{Camera, CameraSettings, NoiseSettings, Part, Primitive, Scene};
 pub use geometry::{FiveBar, Geometry, MAX_CONDITION, MIN_SINGULAR_MARGIN_DEG};
-pub use motion::{Motion, Plan, Target, TimedPath, MAX_TARGETS};
+pub use motion::{Motion, MAX_TARGETS};
+pub use path::{Plan, Target, TimedPath};
 pub use robot::{Robot, RobotSettings};
 
 use image::GrayImage;

@@ -11,6 +11,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::geometry::FiveBar;
+use super::path::{PathKind, Plan, Target, TimedPath};
 use super::SimError;
 
 /// Most nodes or frames a motion may produce.
@@ -109,110 +110,6 @@ pub enum Motion {
         #[serde(default = "default_components")]
         components: usize,
     },
-}
-
-/// One target: time (s; for node motions the node index) and position (mm).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Target {
-    /// Time (s) for timed motions, node index for node motions.
-    pub t: f64,
-    /// x (mm).
-    pub x: f64,
-    /// y (mm).
-    pub y: f64,
-}
-
-/// What the robot does for a motion.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Plan {
-    /// Drive to each node, settle, capture.
-    Nodes(Vec<[f64; 2]>),
-    /// Follow a timed path, capturing at the frame rate.
-    Timed(TimedPath),
-}
-
-#[derive(Debug, Clone, PartialEq)]
-enum PathKind {
-    Lissajous {
-        c: [f64; 2],
-        amp: [f64; 2],
-        freq: [f64; 2],
-        phase: f64,
-    },
-    Circle {
-        c: [f64; 2],
-        radius: f64,
-        omega: f64,
-    },
-    Spiral {
-        c: [f64; 2],
-        rate: f64,
-        omega: f64,
-    },
-    Random {
-        c: [f64; 2],
-        // per axis: (amplitude, angular frequency, phase)
-        terms: [Vec<(f64, f64, f64)>; 2],
-    },
-}
-
-/// A timed, validated path.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TimedPath {
-    kind: PathKind,
-    duration: f64,
-    fps: f64,
-}
-
-impl TimedPath {
-    /// Position (mm) at time `t` (s).
-    pub fn at(&self, t: f64) -> [f64; 2] {
-        match &self.kind {
-            PathKind::Lissajous {
-                c,
-                amp,
-                freq,
-                phase,
-            } => [
-                c[0] + amp[0] * (TAU * freq[0] * t + phase).sin(),
-                c[1] + amp[1] * (TAU * freq[1] * t).sin(),
-            ],
-            PathKind::Circle { c, radius, omega } => {
-                let a = omega * t;
-                [c[0] + radius * a.cos(), c[1] + radius * a.sin()]
-            }
-            PathKind::Spiral { c, rate, omega } => {
-                let r = rate * t;
-                let a = omega * t;
-                [c[0] + r * a.cos(), c[1] + r * a.sin()]
-            }
-            PathKind::Random { c, terms } => {
-                let f = |k: usize| -> f64 {
-                    terms[k]
-                        .iter()
-                        .map(|&(a, w, p)| a * (w * t + p).sin())
-                        .sum()
-                };
-                [c[0] + f(0), c[1] + f(1)]
-            }
-        }
-    }
-
-    /// Duration (s).
-    pub fn duration(&self) -> f64 {
-        self.duration
-    }
-
-    /// Frame rate (frames/s).
-    pub fn fps(&self) -> f64 {
-        self.fps
-    }
-
-    /// Capture times `k / fps` for `k = 0 … ⌊duration·fps⌋ − 1`.
-    pub fn frame_times(&self) -> Vec<f64> {
-        let n = (self.duration * self.fps + 1e-9).floor() as usize;
-        (0..n).map(|k| k as f64 / self.fps).collect()
-    }
 }
 
 fn positive(name: &str, v: f64) -> Result<(), SimError> {
@@ -355,16 +252,16 @@ impl Motion {
                     )));
                 }
                 timing(*duration, *fps)?;
-                Plan::Timed(TimedPath {
-                    kind: PathKind::Lissajous {
+                Plan::Timed(TimedPath::new(
+                    PathKind::Lissajous {
                         c,
                         amp: [amplitude * half[0], amplitude * half[1]],
                         freq: [*freq_x, *freq_y],
                         phase: *phase,
                     },
-                    duration: *duration,
-                    fps: *fps,
-                })
+                    *duration,
+                    *fps,
+                ))
             }
             Motion::Circle {
                 centre,
@@ -376,15 +273,15 @@ impl Motion {
                 positive("radius", *radius)?;
                 positive("speed", *speed)?;
                 timing(*duration, *fps)?;
-                Plan::Timed(TimedPath {
-                    kind: PathKind::Circle {
+                Plan::Timed(TimedPath::new(
+                    PathKind::Circle {
                         c: centre.unwrap_or(c),
                         radius: *radius,
                         omega: speed / radius,
                     },
-                    duration: *duration,
-                    fps: *fps,
-                })
+                    *duration,
+                    *fps,
+                ))
             }
             Motion::Spiral {
                 max_radius,
@@ -395,15 +292,15 @@ impl Motion {
                 positive("max_radius", *max_radius)?;
                 positive("turns", *turns)?;
                 timing(*duration, *fps)?;
-                Plan::Timed(TimedPath {
-                    kind: PathKind::Spiral {
+                Plan::Timed(TimedPath::new(
+                    PathKind::Spiral {
                         c,
                         rate: max_radius / duration,
                         omega: TAU * turns / duration,
                     },
-                    duration: *duration,
-                    fps: *fps,
-                })
+                    *duration,
+                    *fps,
+                ))
             }
             Motion::RandomPath {
                 seed,
@@ -447,18 +344,18 @@ impl Motion {
                 };
                 let tx = axis_terms(half[0]);
                 let ty = axis_terms(half[1]);
-                Plan::Timed(TimedPath {
-                    kind: PathKind::Random { c, terms: [tx, ty] },
-                    duration: *duration,
-                    fps: *fps,
-                })
+                Plan::Timed(TimedPath::new(
+                    PathKind::Random { c, terms: [tx, ty] },
+                    *duration,
+                    *fps,
+                ))
             }
         };
         if let Plan::Timed(path) = &plan {
             // Check the whole path at 1 ms resolution (capped), not only the frames.
-            let n = ((path.duration / 1e-3).ceil() as usize).clamp(1, MAX_TARGETS);
+            let n = ((path.duration() / 1e-3).ceil() as usize).clamp(1, MAX_TARGETS);
             for k in 0..=n {
-                let t = path.duration * k as f64 / n as f64;
+                let t = path.duration() * k as f64 / n as f64;
                 let p = path.at(t);
                 if !fb.contains(p[0], p[1]) {
                     return Err(SimError::OutsideWorkspace(format!(
