@@ -62,6 +62,7 @@ pub mod faults;
 pub mod features;
 pub mod hmm;
 pub mod model;
+pub mod planar;
 pub mod range;
 pub mod report;
 pub mod scenario;

@@ -11,8 +11,8 @@ use super::{
     progress_bar, read_dataset, spinner, write_output,
 };
 use evitrack::estimator::{
-    self, missing_penalty, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential,
-    EvidentialSettings, KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
+    self, ContinuousSettings, DatasetFeatures, EstimatorSettings, Evidential, EvidentialSettings,
+    KnnSettings, KnnWeights, Method, PoseEstimator, TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
@@ -285,7 +285,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         sample: sample.labelled(),
         validation: validation.as_ref().map(|(v, _)| v.labelled()),
         validation_times: validation.as_ref().map(|(_, t)| t.as_slice()),
-        missing_penalty: missing_penalty(&dataset),
+        missing_penalty: dataset.workspace_diagonal(),
         provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };
     if args.method != MethodArg::Evidential {

@@ -38,6 +38,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::Dataset;
 use crate::features::{FeatureConfig, FeatureError, FeatureRows, FeatureSet};
 use crate::model::{ModelError, Provenance};
+use crate::planar::bounding_diagonal;
 use crate::track::TrackError;
 
 /// Failures of fitting, loading or running an estimator.
@@ -506,37 +507,6 @@ impl DatasetFeatures {
             rows: &self.rows,
         }
     }
-}
-
-/// The workspace diagonal of a dataset's declared workspace, or of its poses' bounding box: the
-/// largest error an estimate inside it can have.
-pub fn missing_penalty(dataset: &Dataset) -> f64 {
-    match &dataset.manifest.workspace {
-        Some(w) => (w.x_max - w.x_min).hypot(w.y_max - w.y_min),
-        None => bounding_diagonal(&dataset.truth_positions().unwrap_or_default()),
-    }
-}
-
-/// The diagonal of the poses' bounding box (0 without poses).
-fn bounding_diagonal(poses: &[[f64; 2]]) -> f64 {
-    let (lo, hi) = bounding_box(poses);
-    if poses.is_empty() {
-        0.0
-    } else {
-        (hi[0] - lo[0]).hypot(hi[1] - lo[1])
-    }
-}
-
-/// The lowest and highest x and y of the poses (±∞ inverted without poses).
-pub(crate) fn bounding_box(poses: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in poses {
-        for k in 0..2 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    (lo, hi)
 }
 
 /// Reads a model file written by any estimator's [`PoseEstimator::to_json`] and returns the

@@ -36,8 +36,8 @@ use super::{
 };
 use crate::features::FeatureConfig;
 use crate::model::EvidentialModel;
+use crate::planar::distance;
 use crate::range::within;
-use crate::report::distance;
 use crate::track::{Estimator, SelectionPolicy};
 
 /// The motion model and the reliability of the carried belief (`[temporal]` in scenarios).

@@ -89,8 +89,7 @@ pub struct RunOutput {
 /// The penalty of a frame without an estimate: the workspace diagonal, the largest error an
 /// estimate inside the workspace can have.
 pub fn missing_penalty(sim: &SimSettings) -> f64 {
-    let w = sim.geometry.workspace;
-    (w.x_max - w.x_min).hypot(w.y_max - w.y_min)
+    sim.geometry.workspace.diagonal()
 }
 
 /// Runs one checked scenario: simulate, extract, fit, track, measure.

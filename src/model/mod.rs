@@ -31,10 +31,10 @@ pub use frames::{FeatureFrames, StateCountTuner, TunerError};
 pub use persist::{FORMAT_VERSION, METHOD};
 pub use settings::{ModelSettings, StateCounts, Tuning, MAX_STATES};
 
-use crate::dataset::{check_position, Rect};
 use crate::evidence::EvidenceError;
 use crate::features::FeatureConfig;
 use crate::hmm::HmmError;
+use crate::planar::{check_position, Rect};
 use crate::track::{GroupError, TrackSettings};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

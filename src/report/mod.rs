@@ -89,11 +89,6 @@ impl ErrorStats {
     }
 }
 
-/// Euclidean distance between two planar points.
-pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

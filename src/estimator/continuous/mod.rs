@@ -35,7 +35,6 @@ pub use surrogate::SurrogateHyperparameters;
 /// subgraph (2^n of them).
 pub const MAX_CONTINUOUS_FEATURES: usize = 16;
 
-use super::bounding_box;
 use super::centre::{
     check_features, check_finite, check_training, corrupted, frame_values, load_file, parse_file,
     write_file,
@@ -47,7 +46,7 @@ use super::{
 use crate::evidence::ConflictLevel;
 use crate::features::FeatureConfig;
 use crate::model::{ModelError, Provenance};
-use crate::report::distance;
+use crate::planar::{bounding_box, distance};
 use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
 use frame::{members, Frame};
 use surrogate::{fit_hyperparameters, Surrogate};
