@@ -7,7 +7,7 @@ mod records;
 mod seeds;
 mod table;
 
-pub use files::{write_run, RESULTS_FILE, SCENARIO_FILE};
+pub use files::{write_run, RunOutput, RESULTS_FILE, SCENARIO_FILE};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
     detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
