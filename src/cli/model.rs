@@ -17,7 +17,7 @@ use evitrack::estimator::{
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{ModelSettings, Provenance, StateCounts, Tuning};
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
-use evitrack::track::{Estimator, SelectionPolicy, ThresholdRule, TrackSettings};
+use evitrack::track::{PoseRule, SelectionPolicy, ThresholdRule, TrackSettings};
 
 /// Tracker settings given on the command line; what is left out keeps its value.
 #[derive(Debug, Args)]
@@ -63,9 +63,9 @@ impl TrackOptions {
         }
         if let Some(e) = self.estimator {
             settings.estimator = match e {
-                EstimatorArg::WeightedMean => Estimator::WeightedMean,
-                EstimatorArg::Map => Estimator::Map,
-                EstimatorArg::Pignistic => Estimator::Pignistic,
+                EstimatorArg::WeightedMean => PoseRule::WeightedMean,
+                EstimatorArg::Map => PoseRule::Map,
+                EstimatorArg::Pignistic => PoseRule::Pignistic,
             };
         }
         if let Some(text) = &self.threshold {

@@ -12,11 +12,10 @@ mod continuous;
 mod evidential;
 mod gp;
 mod knn;
+mod motion;
 mod particle;
-mod refine;
-pub mod synthetic;
 mod temporal;
-mod velocity;
+pub mod test_maps;
 
 pub use centre::{Centre, CentreSettings};
 pub use continuous::{
@@ -26,10 +25,9 @@ pub use continuous::{
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
+pub use motion::{TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES};
 pub use particle::{ParticleFilter, ParticleSettings};
-pub use temporal::{
-    TemporalEvidential, TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES,
-};
+pub use temporal::TemporalEvidential;
 
 use std::path::Path;
 

@@ -8,20 +8,20 @@
 mod cells;
 mod conflict;
 mod estimate;
-mod model;
 mod past;
 mod select;
 mod settings;
 mod threshold;
 mod tracker;
+mod tracker_model;
 mod tuples;
 
-pub use model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
 pub use past::{group_beside_past, past_outweighs, PastFrame};
 pub use select::{members, select_group, GroupLevels, GroupMask, Selection};
-pub use settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
+pub use settings::{CheckedTrackSettings, PoseRule, SelectionPolicy, TrackSettings};
 pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};
+pub use tracker_model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
 
 use crate::evidence::EvidenceError;
 

@@ -26,9 +26,9 @@ use serde::{Deserialize, Serialize};
 
 use super::cells::Cells;
 use super::estimate::Weighed;
-use super::model::TrackerModel;
 use super::select::{lex, GroupMask, Selection};
 use super::settings::{CheckedTrackSettings, TrackSettings};
+use super::tracker_model::TrackerModel;
 use super::TrackError;
 use crate::evidence::{
     from_likelihoods, Constructor, LikelihoodIssue, MassFunction, Refining, Subset,
@@ -89,7 +89,7 @@ impl FrameFlags {
 }
 
 /// Spread of the weights behind an estimate (the same weights the estimator used: relative
-/// plausibility, or pignistic probability for [`Estimator::Pignistic`](super::Estimator::Pignistic)).
+/// plausibility, or pignistic probability for [`PoseRule::Pignistic`](super::PoseRule::Pignistic)).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Uncertainty {
     /// RMS distance of the sample poses from the estimate, weighted (mm).
@@ -426,7 +426,7 @@ impl Tracker {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
-    use crate::track::{Estimator, SelectionPolicy, TrackedFeature};
+    use crate::track::{PoseRule, SelectionPolicy, TrackedFeature};
 
     pub(in crate::track) fn tiny_tracker(constructor: crate::evidence::Constructor) -> Tracker {
         // 6 poses on a line; three features with different partitions.
@@ -466,9 +466,9 @@ pub(super) mod tests {
             crate::evidence::Constructor::Consonant,
         ] {
             for (estimator, expected) in [
-                (Estimator::WeightedMean, 4.5),
-                (Estimator::Pignistic, 4.5),
-                (Estimator::Map, 4.0),
+                (PoseRule::WeightedMean, 4.5),
+                (PoseRule::Pignistic, 4.5),
+                (PoseRule::Map, 4.0),
             ] {
                 let settings = TrackSettings {
                     constructor,

@@ -405,7 +405,7 @@ fn squared(a: [f64; 2], b: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimator::synthetic::{workspace_mesh, workspace_points};
+    use crate::estimator::test_maps::{workspace_mesh, workspace_points};
     use rand::SeedableRng;
 
     /// A surrogate of two smooth maps on the 1 mm mesh, with fixed hyperparameters.
