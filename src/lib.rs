@@ -68,4 +68,5 @@ pub mod report;
 pub mod scenario;
 pub mod seed;
 pub mod sim;
+pub mod standardisation;
 pub mod track;

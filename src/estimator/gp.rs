@@ -24,10 +24,11 @@ use super::centre::{
     check_features, check_finite, check_training, corrupted, frame_values, load_file, parse_file,
     write_file,
 };
-use super::knn::{check_samples, kept_samples, Standardisation};
+use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
 use crate::model::{ModelError, Provenance};
+use crate::standardisation::Standardisation;
 
 /// Bounds of the log hyperparameters (inputs and outputs are standardised, so these are wide):
 /// ℓ in 1e-2 ..= 1e3, σf in 1e-3 ..= 1e3, and σn/σf in 1e-6 ..= 10 (the floor keeps the kernel
@@ -274,8 +275,10 @@ impl Gp {
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
-        file.standardisation.check(dim, "standardisation")?;
-        file.output.check(2, "output")?;
+        file.standardisation
+            .check(dim, "standardisation")
+            .map_err(corrupted)?;
+        file.output.check(2, "output").map_err(corrupted)?;
         file.provenance
             .check_poses("sample_poses", &file.sample_poses)
             .map_err(corrupted)?;

@@ -14,6 +14,7 @@ mod gp;
 mod knn;
 mod motion;
 mod particle;
+mod samples;
 mod temporal;
 pub mod test_maps;
 

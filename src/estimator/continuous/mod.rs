@@ -39,7 +39,7 @@ use super::centre::{
     check_features, check_finite, check_training, corrupted, frame_values, load_file, parse_file,
     write_file,
 };
-use super::knn::{check_samples, kept_samples, Standardisation};
+use super::samples::{check_samples, kept_samples};
 use super::{
     EstimateFlags, EstimatorError, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet,
 };
@@ -47,6 +47,7 @@ use crate::evidence::ConflictLevel;
 use crate::features::FeatureConfig;
 use crate::model::{ModelError, Provenance};
 use crate::planar::{bounding_box, distance};
+use crate::standardisation::Standardisation;
 use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
 use frame::{members, Frame};
 use surrogate::{fit_hyperparameters, Surrogate};
@@ -486,12 +487,15 @@ impl Continuous {
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
-        file.pose_standardisation.check(2, "pose_standardisation")?;
+        file.pose_standardisation
+            .check(2, "pose_standardisation")
+            .map_err(corrupted)?;
         file.provenance
             .check_poses("sample_poses", &file.sample_poses)
             .map_err(corrupted)?;
         file.feature_standardisation
-            .check(dim, "feature_standardisation")?;
+            .check(dim, "feature_standardisation")
+            .map_err(corrupted)?;
         if file.hyperparameters.len() != dim {
             return Err(corrupted(format!(
                 "`hyperparameters` has {} entries for {dim} features",

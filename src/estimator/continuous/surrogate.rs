@@ -8,8 +8,8 @@ use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
 
 use super::super::gp::fit::{minimise, upper_inverse, Objective};
-use super::super::knn::Standardisation;
 use crate::planar::bounding_box;
+use crate::standardisation::Standardisation;
 
 /// Jitter tried, relative to σf², when the factorisation fails.
 const JITTERS: [f64; 7] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4];
