@@ -60,6 +60,7 @@ pub mod evidence;
 pub mod experiment;
 pub mod faults;
 pub mod features;
+pub(crate) mod gaussian_process;
 pub mod hmm;
 pub mod model;
 pub mod planar;

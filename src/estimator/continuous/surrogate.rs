@@ -7,7 +7,7 @@
 use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
 
-use super::super::gp::fit::{minimise, upper_inverse, Objective};
+use crate::gaussian_process::{minimise, upper_inverse, Objective};
 use crate::planar::bounding_box;
 use crate::standardisation::Standardisation;
 
