@@ -2,7 +2,7 @@
 //! their pignistic probability), the estimator (weighted mean or MAP) and the uncertainty
 //! (weighted spread and quantile radius).
 
-use super::select::GroupMask;
+use super::group_search::GroupMask;
 use super::settings::PoseRule;
 use super::tracker::{Tracker, Uncertainty, Usable};
 use crate::evidence::{dempster_all, MassFunction};
