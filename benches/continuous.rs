@@ -1,10 +1,10 @@
 //! The continuous evidential tracker, one frame with the features given: 8 synthetic smooth
-//! features of the pose (`estimator::synthetic`), 400 sample poses (the 1 mm mesh), a validation
+//! features of the pose (`estimator::test_maps`), 400 sample poses (the 1 mm mesh), a validation
 //! path of 100 poses. `clean`: a frame at a random pose with the samples' noise, every feature
 //! combined. `faulty`: two features stuck far from their value and a learned threshold, so the
 //! groups below the full one are searched (largest subset). Target (clean): median ≤ 100 µs.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use evitrack::estimator::synthetic::{feature_row, workspace_mesh, workspace_points};
+use evitrack::estimator::test_maps::{feature_row, workspace_mesh, workspace_points};
 use evitrack::estimator::{Continuous, ContinuousSettings, Labelled, PoseEstimator, TrainingSet};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

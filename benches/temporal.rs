@@ -5,7 +5,7 @@
 //! the temporal evidential tracker).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::test_maps::{feature_row, workspace_mesh};
 use evitrack::estimator::{EstimatorSettings, Labelled, Method, TemporalEvidential, TrainingSet};
 use evitrack::model::{ModelSettings, StateCounts};
 use rand::SeedableRng;

@@ -14,7 +14,7 @@ use std::path::Path;
 
 use evitrack::dataset::Dataset;
 use evitrack::estimator::{
-    missing_penalty, DatasetFeatures, Evidential, EvidentialSettings, PoseEstimator, TrainingSet,
+    DatasetFeatures, Evidential, EvidentialSettings, PoseEstimator, TrainingSet,
 };
 use evitrack::features::FeatureConfig;
 
@@ -31,7 +31,7 @@ fn run(
     let sample = Dataset::read(sample_dir)?;
     let labelled = DatasetFeatures::extract(&sample, &features, "the sample dataset")?;
     let training = TrainingSet {
-        missing_penalty: missing_penalty(&sample),
+        missing_penalty: sample.workspace_diagonal(),
         ..TrainingSet::new(&names, labelled.labelled()).with_config(&config)
     };
     let estimator = Evidential::fit(&EvidentialSettings::default(), &training)?;

@@ -22,6 +22,11 @@ use std::path::{Component, Path, PathBuf};
 use image::GrayImage;
 use serde::{Deserialize, Serialize};
 
+pub use crate::planar::{check_position, Rect, MAX_COORDINATE_MM};
+
+/// Joint angles beyond ±this (rad) are refused: a five-bar's motors turn less than a turn.
+pub const MAX_ANGLE_RAD: f64 = 2.0 * std::f64::consts::PI;
+
 /// The on-disk format version this build writes and reads.
 pub const FORMAT_VERSION: u32 = 1;
 /// Manifest file name inside a dataset folder.
@@ -72,76 +77,6 @@ pub enum DatasetError {
     /// The in-memory dataset is inconsistent and cannot be written.
     #[error("invalid dataset: {0}")]
     Invalid(String),
-}
-
-/// An axis-aligned rectangle in mm (used for the robot's workspace).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Rect {
-    /// Smallest x.
-    pub x_min: f64,
-    /// Largest x.
-    pub x_max: f64,
-    /// Smallest y.
-    pub y_min: f64,
-    /// Largest y.
-    pub y_max: f64,
-}
-
-/// Pose coordinates beyond ±this (mm) are refused wherever poses are read, whether a workspace is
-/// declared or not: no rig is 10 m across, and a pose of 1e300 mm only makes every error absurd.
-pub const MAX_COORDINATE_MM: f64 = 1e4;
-
-/// Joint angles beyond ±this (rad) are refused: a five-bar's motors turn less than a turn.
-pub const MAX_ANGLE_RAD: f64 = 2.0 * std::f64::consts::PI;
-
-impl Rect {
-    /// How far outside the rectangle a pose may lie and still count as in it: 5 % of its larger
-    /// side (simulated poses settle within 0.0001 mm of the 19 mm workspace's edges).
-    pub fn slack(&self) -> f64 {
-        0.05 * (self.x_max - self.x_min).max(self.y_max - self.y_min)
-    }
-
-    /// Finite, within ±[`MAX_COORDINATE_MM`], with `x_min < x_max` and `y_min < y_max`.
-    pub fn check(&self) -> Result<(), String> {
-        let corners = [self.x_min, self.x_max, self.y_min, self.y_max];
-        if !corners.iter().all(|v| v.abs() <= MAX_COORDINATE_MM)
-            || self.x_min >= self.x_max
-            || self.y_min >= self.y_max
-        {
-            return Err(format!(
-                "workspace {self:?} must have finite bounds within ±{MAX_COORDINATE_MM} mm with \
-                 x_min < x_max and y_min < y_max"
-            ));
-        }
-        Ok(())
-    }
-}
-
-/// Why the position `p` (mm) cannot be a pose: not finite, beyond ±[`MAX_COORDINATE_MM`], or
-/// outside the declared `workspace` by more than its [`Rect::slack`].
-pub fn check_position(p: [f64; 2], workspace: Option<&Rect>) -> Result<(), String> {
-    if !p.iter().all(|v| v.abs() <= MAX_COORDINATE_MM) {
-        return Err(format!(
-            "position ({}, {}) mm is not finite or beyond ±{MAX_COORDINATE_MM} mm",
-            p[0], p[1]
-        ));
-    }
-    if let Some(w) = workspace {
-        let slack = w.slack();
-        if p[0] < w.x_min - slack
-            || p[0] > w.x_max + slack
-            || p[1] < w.y_min - slack
-            || p[1] > w.y_max + slack
-        {
-            return Err(format!(
-                "position ({}, {}) mm is outside the declared workspace x {}..{}, y {}..{} mm \
-                 (by more than its slack of {slack:.3} mm)",
-                p[0], p[1], w.x_min, w.x_max, w.y_min, w.y_max
-            ));
-        }
-    }
-    Ok(())
 }
 
 impl Truth {
@@ -338,6 +273,15 @@ impl Dataset {
             .iter()
             .map(|f| f.truth.map(|t| [t.x, t.y]))
             .collect()
+    }
+
+    /// The diagonal of the declared workspace, or of the poses' bounding box without one (0
+    /// without truth): the largest error an estimate inside it can have.
+    pub fn workspace_diagonal(&self) -> f64 {
+        match &self.manifest.workspace {
+            Some(w) => w.diagonal(),
+            None => crate::planar::bounding_diagonal(&self.truth_positions().unwrap_or_default()),
+        }
     }
 
     /// Ground truth of every frame, or `None` if any frame has no truth.

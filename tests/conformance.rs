@@ -12,7 +12,7 @@
 use std::path::Path;
 
 use evitrack::dataset::Rect;
-use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::test_maps::{feature_row, workspace_mesh};
 use evitrack::estimator::{
     EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimate, PoseEstimator, TrainingSet,
 };

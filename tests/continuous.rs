@@ -1,8 +1,8 @@
 //! The continuous evidential tracker through the public seam: synthetic feature maps with a known
-//! answer (`estimator::synthetic`), rejection of a stuck feature, plausibility regions, the
+//! answer (`estimator::test_maps`), rejection of a stuck feature, plausibility regions, the
 //! contour product against Dempster's rule on a discretised candidate set, model files, bad input.
 
-use evitrack::estimator::synthetic::{
+use evitrack::estimator::test_maps::{
     feature_row, feature_value, workspace_mesh, workspace_points,
 };
 use evitrack::estimator::{

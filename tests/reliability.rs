@@ -3,7 +3,7 @@
 
 use crate::cli::evitrack;
 use evitrack::dataset::{Dataset, Rect};
-use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::test_maps::{feature_row, workspace_mesh};
 use evitrack::estimator::{load, EstimatorSettings, Labelled, Method, TrainingSet};
 use evitrack::evidence::{
     dempster_all_within, EvidenceError, MassFunction, Subset, WorkLimit, WorkLimits,

@@ -2,7 +2,7 @@
 //! continuous tracker over time and the particle filter on a synthetic path with a burst of dropped frames — predicted estimates,
 //! determinism, model files that round-trip bit for bit and corrupted ones that are named.
 
-use evitrack::estimator::synthetic::{feature_row, workspace_mesh};
+use evitrack::estimator::test_maps::{feature_row, workspace_mesh};
 use evitrack::estimator::{
     ContinuousTemporal, EstimatorError, EstimatorSettings, Labelled, Method, ParticleFilter,
     PoseEstimate, PoseEstimator, TemporalEvidential, TemporalSettings, TrainingSet,

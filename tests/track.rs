@@ -6,7 +6,7 @@ use evitrack::evidence::{
     ConflictLevel, Constructor, LikelihoodIssue, MassFunction, Refining,
 };
 use evitrack::track::{
-    Estimator, FeatureIssue, FrameEstimate, GroupError, SelectionPolicy, TrackSettings,
+    FeatureIssue, FrameEstimate, GroupError, PoseRule, SelectionPolicy, TrackSettings,
     TrackedFeature, Tracker, TrackerModel,
 };
 use rand::{Rng, SeedableRng};
@@ -153,7 +153,7 @@ fn synthetic_problem_reaches_the_quantisation_floor() {
             &feats,
             TrackSettings {
                 constructor,
-                estimator: Estimator::Map,
+                estimator: PoseRule::Map,
                 ..TrackSettings::default()
             },
         );
@@ -201,11 +201,7 @@ fn reference(
 fn fast_path_equals_general_combination() {
     let feats = [X, Y, X_COARSE, Y_COARSE, SUM, DIFF];
     for constructor in [Constructor::Bayesian, Constructor::Consonant] {
-        for estimator in [
-            Estimator::WeightedMean,
-            Estimator::Pignistic,
-            Estimator::Map,
-        ] {
+        for estimator in [PoseRule::WeightedMean, PoseRule::Pignistic, PoseRule::Map] {
             let t = tracker(
                 &feats,
                 TrackSettings {
@@ -229,11 +225,11 @@ fn fast_path_equals_general_combination() {
                     assert!((a - b).abs() < 1e-12, "{a} vs {b}");
                 }
                 let want = match estimator {
-                    Estimator::WeightedMean => pointwise_estimate(&rp, t.model().poses()).unwrap(),
-                    Estimator::Pignistic => {
+                    PoseRule::WeightedMean => pointwise_estimate(&rp, t.model().poses()).unwrap(),
+                    PoseRule::Pignistic => {
                         pointwise_estimate(&pignistic(&m).unwrap(), t.model().poses()).unwrap()
                     }
-                    Estimator::Map => {
+                    PoseRule::Map => {
                         let best = (0..rp.len()).fold(0, |b, q| if rp[q] > rp[b] { q } else { b });
                         t.model().poses()[best]
                     }

@@ -11,15 +11,15 @@ use super::{
     progress_bar, read_dataset, spinner, write_output,
 };
 use evitrack::estimator::{
-    self, missing_penalty, DatasetFeatures, EstimatorSettings, Evidential, Method, PoseEstimator,
-    SettingsContext, TrainingSet,
+    self, DatasetFeatures, EstimatorSettings, Evidential, Method, PoseEstimator, SettingsContext,
+    TrainingSet,
 };
 use evitrack::evidence::{ConflictLevel, Constructor};
 use evitrack::model::{StateCounts, Tuning};
 use evitrack::model_file::Provenance;
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
 use evitrack::scenario::{Scenario, ScenarioSet};
-use evitrack::track::{Estimator, SelectionPolicy, ThresholdRule, TrackSettings};
+use evitrack::track::{PoseRule, SelectionPolicy, ThresholdRule, TrackSettings};
 
 /// Tracker settings given on the command line; what is left out keeps its value.
 #[derive(Debug, Args)]
@@ -222,11 +222,11 @@ enum EstimatorArg {
 }
 
 impl EstimatorArg {
-    fn rule(self) -> Estimator {
+    fn rule(self) -> PoseRule {
         match self {
-            EstimatorArg::WeightedMean => Estimator::WeightedMean,
-            EstimatorArg::Map => Estimator::Map,
-            EstimatorArg::Pignistic => Estimator::Pignistic,
+            EstimatorArg::WeightedMean => PoseRule::WeightedMean,
+            EstimatorArg::Map => PoseRule::Map,
+            EstimatorArg::Pignistic => PoseRule::Pignistic,
         }
     }
 }
@@ -318,7 +318,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         sample: sample.labelled(),
         validation: validation.as_ref().map(|(v, _)| v.labelled()),
         validation_times: validation.as_ref().map(|(_, t)| t.as_slice()),
-        missing_penalty: missing_penalty(&dataset),
+        missing_penalty: dataset.workspace_diagonal(),
         provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };
     let settings = train_settings(args, &names, validation.is_some())?;

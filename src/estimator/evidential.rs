@@ -11,7 +11,7 @@ use crate::model::{
     EvidentialModel, FeatureFrames, FeatureModel, ModelParts, ModelSettings, StateCountTuner,
     TunerError, Tuning,
 };
-use crate::report::distance;
+use crate::planar::distance;
 use crate::track::{
     FrameEstimate, GroupError, SelectionPolicy, ThresholdRule, TrackError, TrackSettings,
     TrackedFeature, Tracker, TrackerModel,

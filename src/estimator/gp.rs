@@ -14,25 +14,20 @@
 //! O(n²) for the variance.
 
 use crate::range::within;
-use std::f64::consts::LN_10;
 use std::path::Path;
 
 use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
 
 use super::inputs::{check_header_features, check_training, frame_values, training_header};
-use super::knn::{check_samples, kept_samples, Standardisation};
+use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
+use crate::gaussian_process::{dot, minimise, Objective, LOG_LENGTH};
 use crate::model::ModelError;
 use crate::model_file::{self, check_finite, corrupted, Header, Provenance};
+use crate::standardisation::Standardisation;
 
-/// Bounds of the log hyperparameters (inputs and outputs are standardised, so these are wide):
-/// ℓ in 1e-2 ..= 1e3, σf in 1e-3 ..= 1e3, and σn/σf in 1e-6 ..= 10 (the floor keeps the kernel
-/// matrix positive definite in practice).
-const LOG_LENGTH: (f64, f64) = (-2.0 * LN_10, 3.0 * LN_10);
-const LOG_SIGNAL: (f64, f64) = (-3.0 * LN_10, 3.0 * LN_10);
-const LOG_NOISE_RATIO: (f64, f64) = (-6.0 * LN_10, LN_10);
 /// Jitter tried, relative to σf², when the final factorisation fails.
 const JITTERS: [f64; 9] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2];
 /// The 90 % disc of an isotropic 2-D Gaussian has radius σ·√(−2 ln 0.1).
@@ -149,10 +144,6 @@ struct GpFile {
     sample_features: Vec<Vec<f64>>,
 }
 
-pub(super) mod fit;
-
-use fit::{dot, minimise, Objective};
-
 impl Gp {
     /// Version of the model file format this build writes and reads.
     pub const FORMAT_VERSION: u32 = 1;
@@ -264,8 +255,10 @@ impl Gp {
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
-        file.standardisation.check(dim, "standardisation")?;
-        file.output.check(2, "output")?;
+        file.standardisation
+            .check(dim, "standardisation")
+            .map_err(corrupted)?;
+        file.output.check(2, "output").map_err(corrupted)?;
         file.header
             .provenance
             .check_poses("sample_poses", &file.sample_poses)?;

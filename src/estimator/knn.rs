@@ -11,13 +11,13 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::inputs::{
-    check_header_features, check_training, complete_samples, frame_values, training_header,
-};
+use super::inputs::{check_header_features, check_training, frame_values, training_header};
+use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
 use crate::model::ModelError;
-use crate::model_file::{self, check_finite, corrupted, Header};
+use crate::model_file::{self, corrupted, Header};
+use crate::standardisation::Standardisation;
 
 /// How the neighbours' poses are averaged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -62,127 +62,6 @@ impl KnnSettings {
         })?;
         Ok(())
     }
-}
-
-/// Per-feature centring and scaling fitted on the samples: `z = (x − mean) / scale`, the scale
-/// being the (population) standard deviation, or 1 for a feature constant on the samples.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(super) struct Standardisation {
-    /// Mean of each feature on the samples.
-    pub means: Vec<f64>,
-    /// Standard deviation of each feature (1 when constant).
-    pub scales: Vec<f64>,
-}
-
-impl Standardisation {
-    /// Fits on `rows` (at least one, all of the same length `dim`, all finite).
-    pub fn fit(rows: &[Vec<f64>], dim: usize) -> Self {
-        let n = rows.len().max(1) as f64;
-        let mut means = vec![0.0; dim];
-        let mut scales = vec![1.0; dim];
-        for d in 0..dim {
-            let column = rows.iter().map(|r| r[d]);
-            let mean = column.clone().sum::<f64>() / n;
-            let (lo, hi) = column
-                .clone()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
-                    (lo.min(x), hi.max(x))
-                });
-            // Exactly constant rather than a tiny rounding std, which would blow it up.
-            if hi > lo {
-                let var = column.map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
-                if var.sqrt() > 0.0 {
-                    scales[d] = var.sqrt();
-                }
-            }
-            means[d] = mean;
-        }
-        Self { means, scales }
-    }
-
-    /// The standardised value of feature `d`.
-    pub fn apply(&self, d: usize, x: f64) -> f64 {
-        (x - self.means[d]) / self.scales[d]
-    }
-
-    /// The standardised rows, flat (row-major).
-    pub fn apply_rows(&self, rows: &[Vec<f64>]) -> Vec<f64> {
-        rows.iter()
-            .flat_map(|r| r.iter().enumerate().map(|(d, &x)| self.apply(d, x)))
-            .collect()
-    }
-
-    /// Checks a loaded standardisation for `dim` features (`field` names it in errors).
-    pub fn check(&self, dim: usize, field: &str) -> Result<(), EstimatorError> {
-        for (name, values) in [("means", &self.means), ("scales", &self.scales)] {
-            if values.len() != dim {
-                return Err(corrupted(format!(
-                    "`{field}.{name}` has {} values where {dim} are expected",
-                    values.len()
-                ))
-                .into());
-            }
-            check_finite(&format!("{field}.{name}"), values)?;
-        }
-        if let Some(d) = self.scales.iter().position(|&s| s <= 0.0) {
-            return Err(corrupted(format!("`{field}.scales[{d}]` is not positive")).into());
-        }
-        Ok(())
-    }
-}
-
-/// Sample poses (mm) and their feature rows.
-pub(super) type Samples = (Vec<[f64; 2]>, Vec<Vec<f64>>);
-
-/// The sample rows a baseline keeps (every value present and finite) and their poses.
-pub(super) fn kept_samples(data: &TrainingSet, method: &str) -> Result<Samples, EstimatorError> {
-    let kept = complete_samples(data, method)?;
-    let poses = kept.iter().map(|&i| data.sample.poses[i]).collect();
-    let rows = kept
-        .iter()
-        .map(|&i| {
-            data.sample.rows[i]
-                .iter()
-                .map(|v| v.unwrap_or(0.0))
-                .collect()
-        })
-        .collect();
-    Ok((poses, rows))
-}
-
-/// Checks loaded sample poses and feature rows: as many rows as poses (at least one), `dim`
-/// values per row, everything finite.
-pub(super) fn check_samples(
-    poses: &[[f64; 2]],
-    rows: &[Vec<f64>],
-    dim: usize,
-) -> Result<(), EstimatorError> {
-    if poses.is_empty() {
-        return Err(corrupted("`sample_poses` is empty").into());
-    }
-    if rows.len() != poses.len() {
-        return Err(corrupted(format!(
-            "`sample_features` has {} rows for {} sample poses",
-            rows.len(),
-            poses.len()
-        ))
-        .into());
-    }
-    for (i, p) in poses.iter().enumerate() {
-        check_finite(&format!("sample_poses[{i}]"), p)?;
-    }
-    for (i, r) in rows.iter().enumerate() {
-        if r.len() != dim {
-            return Err(corrupted(format!(
-                "`sample_features[{i}]` has {} values for {dim} features",
-                r.len()
-            ))
-            .into());
-        }
-        check_finite(&format!("sample_features[{i}]"), r)?;
-    }
-    Ok(())
 }
 
 /// The k-nearest-neighbours baseline, fitted.
@@ -318,7 +197,9 @@ impl Knn {
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
-        file.standardisation.check(dim, "standardisation")?;
+        file.standardisation
+            .check(dim, "standardisation")
+            .map_err(corrupted)?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
         file.header
             .provenance

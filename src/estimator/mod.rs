@@ -13,12 +13,12 @@ mod evidential;
 mod gp;
 mod inputs;
 mod knn;
+mod motion;
 mod particle;
-mod refine;
 mod registry;
-pub mod synthetic;
+mod samples;
 mod temporal;
-mod velocity;
+pub mod test_maps;
 
 pub use centre::{Centre, CentreSettings};
 pub use continuous::{
@@ -28,14 +28,13 @@ pub use continuous::{
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
+pub use motion::{TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES};
 pub use particle::{ParticleFilter, ParticleSettings};
 pub use registry::{
     register, CheckFn, EstimatorSettings, FitFn, LoadFn, Method, MethodEntry, RegistryError,
     SettingsContext, SharedFitFn, BUILT_IN,
 };
-pub use temporal::{
-    TemporalEvidential, TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES,
-};
+pub use temporal::TemporalEvidential;
 
 use std::path::Path;
 
@@ -45,6 +44,7 @@ use crate::dataset::Dataset;
 use crate::features::{FeatureConfig, FeatureError, FeatureRows, FeatureSet};
 use crate::model::ModelError;
 use crate::model_file::{ModelFileError, Provenance};
+use crate::planar::bounding_diagonal;
 use crate::track::TrackError;
 
 /// Failures of fitting, loading or running an estimator.
@@ -389,37 +389,6 @@ impl DatasetFeatures {
             rows: &self.rows,
         }
     }
-}
-
-/// The workspace diagonal of a dataset's declared workspace, or of its poses' bounding box: the
-/// largest error an estimate inside it can have.
-pub fn missing_penalty(dataset: &Dataset) -> f64 {
-    match &dataset.manifest.workspace {
-        Some(w) => (w.x_max - w.x_min).hypot(w.y_max - w.y_min),
-        None => bounding_diagonal(&dataset.truth_positions().unwrap_or_default()),
-    }
-}
-
-/// The diagonal of the poses' bounding box (0 without poses).
-fn bounding_diagonal(poses: &[[f64; 2]]) -> f64 {
-    let (lo, hi) = bounding_box(poses);
-    if poses.is_empty() {
-        0.0
-    } else {
-        (hi[0] - lo[0]).hypot(hi[1] - lo[1])
-    }
-}
-
-/// The lowest and highest x and y of the poses (±∞ inverted without poses).
-pub(crate) fn bounding_box(poses: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in poses {
-        for k in 0..2 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    (lo, hi)
 }
 
 /// Reads a model file written by any registered estimator's [`PoseEstimator::to_json`] and

@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::inputs::frame_values;
-use super::velocity::VelocityLine;
+use super::motion::VelocityLine;
 use super::{
     Continuous, ContinuousSettings, EstimateFlags, EstimatorError, MotionTracker, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,

@@ -27,8 +27,10 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use super::evidential::pose_estimate;
-use super::refine::Refinement;
-use super::velocity::VelocityLine;
+use super::motion::{
+    learned_reliability, motion_error, Refinement, TemporalSettings, VelocityLine,
+    DEFAULT_RELIABILITY,
+};
 use super::{
     EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
     TrainingSet,
@@ -37,101 +39,7 @@ use crate::features::FeatureConfig;
 use crate::model::EvidentialModel;
 use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
-use crate::report::distance;
-use crate::track::{Estimator, SelectionPolicy};
-
-/// The motion model and the reliability of the carried belief (`[temporal]` in scenarios).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TemporalSettings {
-    /// The fastest the end effector moves (mm/s): the reach of one frame interval is
-    /// `max_speed` × Δt. Default 80: twice the fastest test motion (a 40 mm/s circle; the rig
-    /// follows 43 mm/s within micrometres), because the carried belief is sharper than the
-    /// estimate's error and a tight reach makes the tracker lag (README, "Tracking over time").
-    pub max_speed: f64,
-    /// Reliability α ∈ [0, 1] of the carried belief; `None` learns it on the validation motion
-    /// (the candidate with the lowest mean error, the largest among ties,
-    /// [`RELIABILITY_CANDIDATES`]), or takes [`DEFAULT_RELIABILITY`] without one.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub reliability: Option<f64>,
-    /// How many features the carried belief counts as in the largest-subset choice
-    /// ([`crate::track::Tracker::track_with_past`]); `None`: half the features, so that a frame
-    /// whose best coherent group holds fewer than half of its features is outweighed by the
-    /// past. 1 counts it exactly as a feature.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub past_weight: Option<f64>,
-    /// How many of the last estimates the velocity prediction is fitted through (a
-    /// least-squares line); below 2 the estimates stay on the sample poses' weights.
-    pub velocity_frames: usize,
-    /// Spread σ (mm) of the velocity prediction's consonant belief on the refined sample poses
-    /// ([`super::refine`]); `None`: half the sample poses' typical spacing.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub velocity_spread: Option<f64>,
-}
-
-/// The reliabilities tried when learning α.
-pub const RELIABILITY_CANDIDATES: [f64; 7] = [0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 1.0];
-
-/// α when it is neither given nor learnable (no validation motion with timestamps).
-pub const DEFAULT_RELIABILITY: f64 = 0.9;
-
-/// Validation errors within this relative margin of the lowest are a tie.
-const RELIABILITY_TIE: f64 = 1e-9;
-
-impl Default for TemporalSettings {
-    fn default() -> Self {
-        Self {
-            max_speed: 80.0,
-            reliability: None,
-            past_weight: None,
-            velocity_frames: 3,
-            velocity_spread: None,
-        }
-    }
-}
-
-impl TemporalSettings {
-    /// How many features the past counts as with `features` features: `past_weight`, or half
-    /// of them.
-    pub fn past_weight_for(&self, features: usize) -> f64 {
-        self.past_weight.unwrap_or(0.5 * features as f64)
-    }
-
-    /// Checks the ranges.
-    ///
-    /// # Errors
-    /// [`EstimatorError::Training`] naming the field.
-    pub fn check(&self) -> Result<(), EstimatorError> {
-        if !(self.max_speed.is_finite() && self.max_speed > 0.0) {
-            return Err(EstimatorError::Training(format!(
-                "`temporal.max_speed` is {}: give the fastest speed of the end effector in mm/s \
-                 (> 0)",
-                self.max_speed
-            )));
-        }
-        if let Some(alpha) = self.reliability {
-            within(alpha, 0.0..=1.0)
-                .map_err(|e| EstimatorError::Training(format!("`temporal.reliability`: {e}")))?;
-        }
-        if let Some(weight) = self.past_weight {
-            if !(weight.is_finite() && weight >= 0.0) {
-                return Err(EstimatorError::Training(format!(
-                    "`temporal.past_weight` is {weight}: give how many features the past counts \
-                     as (≥ 0)"
-                )));
-            }
-        }
-        if let Some(spread) = self.velocity_spread {
-            if !(spread.is_finite() && spread > 0.0) {
-                return Err(EstimatorError::Training(format!(
-                    "`temporal.velocity_spread` is {spread}: give the spread of the velocity \
-                     prediction in mm (> 0), or leave it out for half the sample spacing"
-                )));
-            }
-        }
-        Ok(())
-    }
-}
+use crate::track::{PoseRule, SelectionPolicy};
 
 /// The temporal evidential tracker, fitted: the paper's tracker and the carried belief's
 /// settings.
@@ -185,7 +93,7 @@ impl TemporalEvidential {
         let mut fitted = Self::new(inner, settings.clone(), DEFAULT_RELIABILITY, false)?;
         let learned = learned_reliability(settings, data, |alpha| {
             fitted.file.reliability = alpha;
-            validation_error(&fitted, data)
+            motion_error(&fitted, data)
         })?;
         if let Some(alpha) = learned {
             fitted.file.reliability = alpha;
@@ -318,7 +226,7 @@ impl EvidentialMotion<'_> {
             .settings
             .velocity_spread
             .unwrap_or(0.5 * refinement.spacing());
-        let map = self.estimator.inner.tracker().settings().estimator == Estimator::Map;
+        let map = self.estimator.inner.tracker().settings().estimator == PoseRule::Map;
         refinement.estimate(weights, predicted, spread, map)
     }
 }
@@ -382,55 +290,6 @@ impl MotionTracker for EvidentialMotion<'_> {
         self.past = Some((time, moved));
         Ok(estimate)
     }
-}
-
-/// α as given, or learned on the validation motion: the candidate with the lowest
-/// `validation_error(α)`, the largest among ties. `None` when it is neither given nor learnable
-/// (no validation motion with timestamps).
-pub(super) fn learned_reliability(
-    settings: &TemporalSettings,
-    data: &TrainingSet,
-    mut validation_error: impl FnMut(f64) -> Result<f64, EstimatorError>,
-) -> Result<Option<f64>, EstimatorError> {
-    if let Some(alpha) = settings.reliability {
-        return Ok(Some(alpha));
-    }
-    if data.validation.is_none() || data.validation_times.is_none() {
-        return Ok(None);
-    }
-    let errors = RELIABILITY_CANDIDATES
-        .iter()
-        .map(|&alpha| validation_error(alpha))
-        .collect::<Result<Vec<_>, _>>()?;
-    let best = errors.iter().copied().fold(f64::INFINITY, f64::min);
-    // Ties (a validation motion the past cannot improve on) go to the most reliable: the reach
-    // is a hard bound when the speed limit holds.
-    Ok(RELIABILITY_CANDIDATES
-        .iter()
-        .zip(&errors)
-        .rev()
-        .find(|(_, &e)| e <= best * (1.0 + RELIABILITY_TIE))
-        .map(|(&alpha, _)| alpha))
-}
-
-/// Mean error of `estimator` over the validation motion, frames in order (frames without an
-/// estimate count as the missing penalty); 0 without one.
-pub(super) fn validation_error(
-    estimator: &dyn PoseEstimator,
-    data: &TrainingSet,
-) -> Result<f64, EstimatorError> {
-    let (Some(validation), Some(times)) = (&data.validation, data.validation_times) else {
-        return Ok(0.0);
-    };
-    let mut motion = estimator.start_motion();
-    let mut total = 0.0;
-    for ((&t, row), &q) in times.iter().zip(validation.rows).zip(validation.poses) {
-        total += motion
-            .next(t, row)?
-            .pose
-            .map_or(data.missing_penalty, |p| distance(p, q));
-    }
-    Ok(total / validation.rows.len().max(1) as f64)
 }
 
 /// The contour scaled to maximum 1; `None` when it has no positive finite maximum.

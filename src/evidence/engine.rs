@@ -3,7 +3,7 @@
 //! open-addressing table, so a step costs one AND, one hash and (rarely) one comparison per pair
 //! of focal sets, with no allocation per pair; bounded by [`WorkLimits`].
 
-use super::combine::{WorkLimit, WorkLimits};
+use super::limits::{WorkLimit, WorkLimits};
 use super::mass::MassFunction;
 use super::subset::word_count;
 use super::EvidenceError;

@@ -10,8 +10,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::combine::{conjunctive_all_within, dempster_all_within, Rule, WorkLimit, WorkLimits};
+use super::combine::{conjunctive_all_within, dempster_all_within, Rule};
 use super::level::ConflictLevel;
+use super::limits::{WorkLimit, WorkLimits};
 use super::mass::{MassFunction, MASS_TOLERANCE};
 use super::subset::{word_count, Subset};
 use super::EvidenceError;

@@ -11,6 +11,7 @@ mod decision;
 mod engine;
 pub mod exchange;
 mod level;
+mod limits;
 mod mass;
 mod refining;
 mod subset;
@@ -18,12 +19,13 @@ mod subset;
 pub use combine::{
     conflict, conflict_level_all, conjunctive, conjunctive_all, conjunctive_all_within,
     contour_product, dempster, dempster_all, dempster_all_within, level_of_conflict, Combination,
-    Rule, WorkLimit, WorkLimits,
+    Rule,
 };
 pub use construct::{from_likelihoods, Constructor, LikelihoodIssue, Measurement};
 pub use decision::{pignistic, pointwise_estimate, relative_plausibility};
 pub use exchange::{combine_input, combine_json, CombineInput, CombineReport, RawMassFunction};
 pub use level::ConflictLevel;
+pub use limits::{WorkLimit, WorkLimits};
 pub use mass::{MassFunction, MASS_TOLERANCE};
 pub use refining::Refining;
 pub use subset::{Iter, Subset, INLINE_BITS, MAX_FRAME};

@@ -14,10 +14,13 @@ mod workbench;
 pub use sample::{sample_trajectory, SampleTrajectory};
 pub use workbench::{Step, Workbench};
 
+// Everything a run produced lives with the files written from it.
+pub use crate::report::RunOutput;
+
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use crate::estimator::{EstimatorError, Evidential, Labelled, PoseEstimator, TrainingSet};
+use crate::estimator::{EstimatorError, Evidential, Labelled, TrainingSet};
 use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
 use crate::model_file::Provenance;
@@ -65,30 +68,10 @@ pub enum ExperimentError {
 /// Receives progress: stage name, done, total.
 pub type Progress<'a> = &'a mut dyn FnMut(&str, usize, usize);
 
-/// Everything a run produced.
-#[derive(Debug)]
-pub struct RunOutput {
-    /// The numbers.
-    pub summary: RunSummary,
-    /// Every test frame, once per method (methods in the scenario's order).
-    pub records: Vec<FrameRecord>,
-    /// The fitted estimators, in the scenario's order (their model files are self-contained).
-    pub estimators: Vec<Box<dyn PoseEstimator>>,
-    /// The sample poses it was trained on.
-    pub samples: Vec<[f64; 2]>,
-    /// For each sample pose, the adaptive round that added it (0: the initial trajectory).
-    pub sample_rounds: Vec<usize>,
-    /// Wall times (not in the summary, so that the same scenario and seed give the same one).
-    pub timings: Timings,
-    /// The scenario as TOML ([`CheckedScenario::to_toml`]).
-    pub scenario_toml: String,
-}
-
 /// The penalty of a frame without an estimate: the workspace diagonal, the largest error an
 /// estimate inside the workspace can have.
 pub fn missing_penalty(sim: &SimSettings) -> f64 {
-    let w = sim.geometry.workspace;
-    (w.x_max - w.x_min).hypot(w.y_max - w.y_min)
+    sim.geometry.workspace.diagonal()
 }
 
 /// Runs one checked scenario: simulate, extract, fit, track, measure.

@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{check_position, Rect};
 use crate::features::FeatureConfig;
+use crate::planar::{check_position, Rect};
 
 /// Failures of reading, checking or writing a model file.
 #[derive(Debug, thiserror::Error)]

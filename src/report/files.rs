@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use super::{plot_trajectory, write_frames_csv, FrameRecord, ReportError};
-use crate::experiment::RunOutput;
+use super::{RunSummary, Timings};
+use crate::estimator::PoseEstimator;
 
 fn write_error(
     path: &Path,
@@ -14,6 +15,25 @@ fn write_error(
         path: path.display().to_string(),
         source: source.into(),
     }
+}
+
+/// Everything a run produced.
+#[derive(Debug)]
+pub struct RunOutput {
+    /// The numbers.
+    pub summary: RunSummary,
+    /// Every test frame, once per method (methods in the scenario's order).
+    pub records: Vec<FrameRecord>,
+    /// The fitted estimators, in the scenario's order (their model files are self-contained).
+    pub estimators: Vec<Box<dyn PoseEstimator>>,
+    /// The sample poses it was trained on.
+    pub samples: Vec<[f64; 2]>,
+    /// For each sample pose, the adaptive round that added it (0: the initial trajectory).
+    pub sample_rounds: Vec<usize>,
+    /// Wall times (not in the summary, so that the same scenario and seed give the same one).
+    pub timings: Timings,
+    /// The scenario as TOML ([`crate::scenario::CheckedScenario::to_toml`]).
+    pub scenario_toml: String,
 }
 
 /// The file of a run folder whose presence says the run finished: written last.

@@ -7,7 +7,7 @@ mod records;
 mod seeds;
 mod table;
 
-pub use files::{write_run, RESULTS_FILE, SCENARIO_FILE};
+pub use files::{write_run, RunOutput, RESULTS_FILE, SCENARIO_FILE};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
     detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
@@ -87,11 +87,6 @@ impl ErrorStats {
             max: finite[count - 1],
         })
     }
-}
-
-/// Euclidean distance between two planar points.
-pub fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 #[cfg(test)]

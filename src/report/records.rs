@@ -3,11 +3,12 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{distance, ErrorStats};
+use super::ErrorStats;
 use crate::estimator::{EstimateFlags, PoseEstimate};
 use crate::evidence::ConflictLevel;
 use crate::faults::FrameFaults;
 use crate::model::EvidentialModel;
+use crate::planar::distance;
 use crate::scenario::{Expectations, MethodExpectations};
 
 /// One tracked frame of a test motion, by one method.

@@ -8,7 +8,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::SimError;
-use crate::dataset::Rect;
+use crate::planar::Rect;
 
 /// Largest Jacobian condition number accepted anywhere in the workspace.
 pub const MAX_CONDITION: f64 = 10.0;

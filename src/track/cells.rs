@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use super::model::TrackerModel;
+use super::tracker_model::TrackerModel;
 use super::TrackError;
 use crate::evidence::{Refining, Subset};
 

@@ -4,13 +4,9 @@
 
 use std::collections::HashMap;
 
-use super::select::memoised_level;
-use super::select::{members, GroupMask};
+use super::group_search::{members, memoised_level, GroupMask};
 use super::tracker::{Tracker, Usable};
 use crate::evidence::{conflict_level_all, Constructor, MassFunction, Subset};
-
-/// Two levels of conflict closer than this are a tie.
-pub(super) const TIE: f64 = 1e-12;
 
 impl Tracker {
     /// Pairwise level of conflict of two usable features (i < j), on their own frames: focal sets
@@ -235,7 +231,7 @@ fn usable_members(group: GroupMask, usable: &[Option<Usable>]) -> Vec<(usize, &U
 mod tests {
     use super::*;
     use crate::evidence::{conflict, from_likelihoods, level_of_conflict, Refining};
-    use crate::track::tracker::tests::tiny_tracker;
+    use crate::track::tracking::tests::tiny_tracker;
     use crate::track::{TrackSettings, TrackedFeature, TrackerModel};
 
     #[test]
@@ -281,7 +277,7 @@ mod tests {
         let mut groups: Vec<GroupMask> = (1..32)
             .filter(|g: &GroupMask| g.count_ones() >= 2)
             .collect();
-        groups.sort_by(|&a, &b| crate::track::select::lex_cmp(a, b));
+        groups.sort_by(|&a, &b| crate::track::group_search::lex_cmp(a, b));
         for round in 0..3 {
             if round > 0 {
                 groups.shuffle(rng);

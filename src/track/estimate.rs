@@ -2,8 +2,8 @@
 //! their pignistic probability), the estimator (weighted mean or MAP) and the uncertainty
 //! (weighted spread and quantile radius).
 
-use super::select::GroupMask;
-use super::settings::Estimator;
+use super::group_search::GroupMask;
+use super::settings::PoseRule;
 use super::tracker::{Tracker, Uncertainty, Usable};
 use crate::evidence::{dempster_all, MassFunction};
 
@@ -82,7 +82,7 @@ impl Tracker {
     ) -> Option<([f64; 2], Vec<f64>, Uncertainty)> {
         let pl = self.plausibility(group, usable)?;
         let weights = match self.settings.estimator {
-            Estimator::Pignistic => {
+            PoseRule::Pignistic => {
                 let combined = dempster_all(&self.on_cells(group, usable)?).ok()?.mass?;
                 self.pignistic(&combined)
             }
@@ -145,7 +145,7 @@ impl Tracker {
     pub(super) fn estimate_from(&self, weights: &[f64]) -> Option<([f64; 2], Uncertainty)> {
         let poses = self.model.poses();
         let estimate = match self.settings.estimator {
-            Estimator::Map => {
+            PoseRule::Map => {
                 let mut best = 0;
                 for (q, &x) in weights.iter().enumerate() {
                     if x > weights[best] {

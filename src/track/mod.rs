@@ -5,23 +5,25 @@
 //! The tracker takes plain data (sample poses, refinings, likelihood vectors) so that it does not
 //! depend on how the model was trained.
 
+mod cell_levels;
 mod cells;
 mod conflict;
 mod estimate;
-mod model;
+mod group_search;
 mod past;
-mod select;
 mod settings;
 mod threshold;
 mod tracker;
+mod tracker_model;
+mod tracking;
 mod tuples;
 
-pub use model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
+pub use group_search::{members, select_group, GroupLevels, GroupMask, Selection};
 pub use past::{group_beside_past, past_outweighs, PastFrame};
-pub use select::{members, select_group, GroupLevels, GroupMask, Selection};
-pub use settings::{CheckedTrackSettings, Estimator, SelectionPolicy, TrackSettings};
+pub use settings::{CheckedTrackSettings, PoseRule, SelectionPolicy, TrackSettings};
 pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};
+pub use tracker_model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};
 
 use crate::evidence::EvidenceError;
 

@@ -11,7 +11,8 @@
 
 use std::collections::HashMap;
 
-use super::select::{members, select_group, CellLevels, GroupLevels, GroupMask};
+use super::cell_levels::CellLevels;
+use super::group_search::{members, select_group, GroupLevels, GroupMask};
 use super::settings::SelectionPolicy;
 use super::tracker::{FrameEstimate, Tracker, Usable};
 use super::TrackError;
@@ -320,7 +321,7 @@ impl Tracker {
 #[cfg(test)]
 mod tests {
     use crate::evidence::Constructor;
-    use crate::track::tracker::tests::tiny_tracker;
+    use crate::track::tracking::tests::tiny_tracker;
 
     fn frame() -> Vec<Option<Vec<f64>>> {
         vec![

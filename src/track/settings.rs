@@ -93,7 +93,7 @@ impl SelectionPolicy {
 /// How the pose estimate is read off the combined belief function (§4.4).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
-pub enum Estimator {
+pub enum PoseRule {
     /// Σ p(q) q with p the relative plausibility of the sample poses (the paper's estimate).
     #[default]
     WeightedMean,
@@ -116,7 +116,7 @@ pub struct TrackSettings {
     /// Group selection policy.
     pub selection: SelectionPolicy,
     /// Pose estimator.
-    pub estimator: Estimator,
+    pub estimator: PoseRule,
     /// Share of the relative plausibility the reported uncertainty radius must hold, in (0, 1].
     pub uncertainty_mass: f64,
 }
@@ -127,7 +127,7 @@ impl Default for TrackSettings {
             constructor: Constructor::Bayesian,
             conflict_threshold: ConflictLevel::Infinite,
             selection: SelectionPolicy::LargestSubset,
-            estimator: Estimator::WeightedMean,
+            estimator: PoseRule::WeightedMean,
             uncertainty_mass: 0.9,
         }
     }
@@ -189,7 +189,7 @@ mod tests {
         let t = TrackSettings {
             conflict_threshold: ConflictLevel::Finite(0.25),
             selection: SelectionPolicy::LowestConflict { min_size: 3 },
-            estimator: Estimator::Map,
+            estimator: PoseRule::Map,
             constructor: Constructor::Consonant,
             uncertainty_mass: 0.5,
         };

@@ -3,7 +3,7 @@
 //! prefix's tuples refined by one feature (one pass over the cells instead of one per member).
 //! Every product and sum is taken in the same order as there, so the levels are bit-identical.
 
-use super::select::{members, GroupMask};
+use super::group_search::{members, GroupMask};
 use super::tracker::{Tracker, Usable};
 
 /// The distinct state tuples of one group on the cells.

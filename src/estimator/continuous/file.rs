@@ -7,10 +7,11 @@ use serde::{Deserialize, Serialize};
 use super::surrogate::{Surrogate, SurrogateHyperparameters};
 use super::{Continuous, ContinuousSettings, MAX_CONTINUOUS_FEATURES};
 use crate::estimator::inputs::check_header_features;
-use crate::estimator::knn::{check_samples, Standardisation};
+use crate::estimator::samples::check_samples;
 use crate::estimator::EstimatorError;
 use crate::evidence::ConflictLevel;
 use crate::model_file::{self, check_finite, corrupted, Header};
+use crate::standardisation::Standardisation;
 
 /// The model file, and the fitted state.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -55,12 +56,15 @@ impl Continuous {
         file.settings
             .check()
             .map_err(|e| corrupted(format!("`settings`: {e}")))?;
-        file.pose_standardisation.check(2, "pose_standardisation")?;
+        file.pose_standardisation
+            .check(2, "pose_standardisation")
+            .map_err(model_file::corrupted)?;
         file.header
             .provenance
             .check_poses("sample_poses", &file.sample_poses)?;
         file.feature_standardisation
-            .check(dim, "feature_standardisation")?;
+            .check(dim, "feature_standardisation")
+            .map_err(model_file::corrupted)?;
         if file.hyperparameters.len() != dim {
             return Err(corrupted(format!(
                 "`hyperparameters` has {} entries for {dim} features",

@@ -35,9 +35,8 @@ pub use surrogate::SurrogateHyperparameters;
 /// subgraph (2^n of them).
 pub const MAX_CONTINUOUS_FEATURES: usize = 16;
 
-use super::bounding_box;
 use super::inputs::{check_training, frame_values, training_header};
-use super::knn::{kept_samples, Standardisation};
+use super::samples::kept_samples;
 use super::{
     EstimateFlags, EstimatorError, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet,
 };
@@ -45,7 +44,8 @@ use crate::evidence::ConflictLevel;
 use crate::features::FeatureConfig;
 use crate::model::ModelError;
 use crate::model_file::{self, Provenance};
-use crate::report::distance;
+use crate::planar::{bounding_box, distance};
+use crate::standardisation::Standardisation;
 use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
 use file::ContinuousFile;
 use frame::{members, Frame};

@@ -7,9 +7,9 @@
 use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
 
-use super::super::bounding_box;
-use super::super::gp::fit::{minimise, upper_inverse, Objective};
-use super::super::knn::Standardisation;
+use crate::gaussian_process::{minimise, upper_inverse, Objective};
+use crate::planar::bounding_box;
+use crate::standardisation::Standardisation;
 
 /// Jitter tried, relative to σf², when the factorisation fails.
 const JITTERS: [f64; 7] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4];
@@ -405,7 +405,7 @@ fn squared(a: [f64; 2], b: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::estimator::synthetic::{workspace_mesh, workspace_points};
+    use crate::estimator::test_maps::{workspace_mesh, workspace_points};
     use rand::SeedableRng;
 
     /// A surrogate of two smooth maps on the 1 mm mesh, with fixed hyperparameters.

@@ -20,8 +20,9 @@ use serde::{Deserialize, Serialize};
 use super::frame::{members, Frame, PastTerm};
 use super::Continuous;
 use crate::estimator::inputs::frame_values;
-use crate::estimator::temporal::{learned_reliability, validation_error, DEFAULT_RELIABILITY};
-use crate::estimator::velocity::VelocityLine;
+use crate::estimator::motion::{
+    learned_reliability, motion_error, VelocityLine, DEFAULT_RELIABILITY,
+};
 use crate::estimator::{
     ContinuousSettings, EstimatorError, MotionTracker, PlausibilityRegion, PoseEstimate,
     PoseEstimator, TemporalSettings, TrainingSet,
@@ -87,7 +88,7 @@ impl ContinuousTemporal {
         };
         let learned = learned_reliability(settings, data, |alpha| {
             fitted.file.reliability = alpha;
-            validation_error(&fitted, data)
+            motion_error(&fitted, data)
         })?;
         if let Some(alpha) = learned {
             fitted.file.reliability = alpha;

@@ -13,14 +13,14 @@
 use std::cmp::Ordering;
 use std::collections::HashMap;
 
-use super::conflict::TIE;
 use super::settings::SelectionPolicy;
-use super::tracker::{Tracker, Usable};
-use super::tuples::TupleStack;
-use crate::evidence::{ConflictLevel, Constructor};
+use crate::evidence::ConflictLevel;
 
 /// A group of features as a bit mask: bit `i` is feature `i`.
 pub type GroupMask = u64;
+
+/// Two levels of conflict closer than this are a tie.
+pub(super) const TIE: f64 = 1e-12;
 
 /// The outcome of group selection for one frame.
 #[derive(Debug, Clone, PartialEq)]
@@ -517,73 +517,6 @@ fn every_clique(
     (chosen, alternatives)
 }
 
-/// The paper's tracker seen by the selection: its cells, pairwise and group levels.
-pub(super) struct CellLevels<'a> {
-    pub(super) tracker: &'a Tracker,
-    pub(super) usable: &'a [Option<Usable>],
-    /// Bayesian levels grown along the search's walk.
-    tuples: TupleStack,
-}
-
-impl GroupLevels for CellLevels<'_> {
-    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
-        match (&self.usable[i], &self.usable[j]) {
-            (Some(a), Some(b)) => self.tracker.pair_level(i, j, a, b),
-            _ => f64::INFINITY,
-        }
-    }
-
-    fn group_level(&mut self, group: GroupMask) -> f64 {
-        match self.tracker.settings.constructor {
-            Constructor::Bayesian => self
-                .tuples
-                .level(self.tracker, self.usable, group)
-                .unwrap_or_else(|| self.tracker.general_level(group, self.usable)),
-            Constructor::Consonant => self.tracker.raw_level(group, self.usable),
-        }
-    }
-
-    fn fallback_feature(&self) -> Option<usize> {
-        self.tracker.fallback_feature(self.usable)
-    }
-}
-
-impl Tracker {
-    /// The selection's view of a frame's usable features.
-    pub(super) fn cell_levels<'a>(&'a self, usable: &'a [Option<Usable>]) -> CellLevels<'a> {
-        CellLevels {
-            tracker: self,
-            usable,
-            tuples: TupleStack::default(),
-        }
-    }
-
-    /// Choose the group to combine among the usable features (`usable_mask`, not empty).
-    pub(super) fn select(&self, usable: &[Option<Usable>], usable_mask: GroupMask) -> Selection {
-        let mut levels = self.cell_levels(usable);
-        select_group(
-            &mut levels,
-            usable.len(),
-            usable_mask,
-            self.settings.selection,
-            self.settings.conflict_threshold,
-        )
-    }
-
-    /// The fallback feature: lowest validation error (features without one after those with one),
-    /// then lowest index.
-    fn fallback_feature(&self, usable: &[Option<Usable>]) -> Option<usize> {
-        let features = self.model.features();
-        (0..usable.len())
-            .filter(|&i| usable[i].is_some())
-            .min_by(|&a, &b| {
-                let ea = features[a].validation_error.unwrap_or(f64::INFINITY);
-                let eb = features[b].validation_error.unwrap_or(f64::INFINITY);
-                ea.total_cmp(&eb).then(a.cmp(&b))
-            })
-    }
-}
-
 #[cfg(test)]
-#[path = "select_tests.rs"]
+#[path = "group_search_tests.rs"]
 mod tests;
