@@ -5,6 +5,7 @@ mod model;
 mod runs;
 mod sweep;
 mod tables;
+mod train_settings;
 
 use std::path::Path;
 use std::process::ExitCode;

@@ -10,38 +10,34 @@ use super::{
     check_polarity, ensure_output_writable, extract_with_progress, feature_config_for,
     progress_bar, read_dataset, spinner, write_output,
 };
-use evitrack::estimator::{
-    self, DatasetFeatures, EstimatorSettings, Evidential, Method, PoseEstimator, SettingsContext,
-    TrainingSet,
-};
+use evitrack::estimator::{self, DatasetFeatures, Evidential, Method, PoseEstimator, TrainingSet};
 use evitrack::evidence::{ConflictLevel, Constructor};
-use evitrack::model::{StateCounts, Tuning};
+use evitrack::model::StateCounts;
 use evitrack::model_file::Provenance;
 use evitrack::report::{write_frames_csv, ErrorStats, FrameRecord, Table};
-use evitrack::scenario::{Scenario, ScenarioSet};
 use evitrack::track::{PoseRule, SelectionPolicy, ThresholdRule, TrackSettings};
 
 /// Tracker settings given on the command line; what is left out keeps its value.
 #[derive(Debug, Args)]
-struct TrackOptions {
+pub(super) struct TrackOptions {
     /// Belief-function constructor [default at training: bayesian].
     #[arg(long, value_enum)]
-    constructor: Option<ConstructorArg>,
+    pub(super) constructor: Option<ConstructorArg>,
     /// Conflict threshold, one spelling for every method that has one: a number ≥ 0, `inf`
     /// (combine everything), `learned` (on the validation dataset, by the method's rule) or
     /// `quantile:Q` (learned as the Q-quantile of the validation levels) [default at training:
     /// the evidential tracker learns it with --validation, inf without; at tracking: the model's].
     #[arg(long)]
-    threshold: Option<String>,
+    pub(super) threshold: Option<String>,
     /// Which compatible group to combine: `largest`, `lowest:N` (lowest conflict among groups of
     /// at least N features) or `split:N` (every group of at least N; the first is reported)
     /// [default at training: largest].
     #[arg(long)]
-    selection: Option<String>,
+    pub(super) selection: Option<String>,
     /// Pointwise estimate from the combined belief function [default at training:
     /// weighted-mean].
     #[arg(long, value_enum)]
-    estimator: Option<EstimatorArg>,
+    pub(super) estimator: Option<EstimatorArg>,
 }
 
 impl TrackOptions {
@@ -77,7 +73,7 @@ impl TrackOptions {
 
 /// What `--threshold` says.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum ThresholdArg {
+pub(super) enum ThresholdArg {
     /// A threshold used as given.
     Fixed(ConflictLevel),
     /// Learned on the validation motion, by this rule or the settings' own.
@@ -85,7 +81,7 @@ enum ThresholdArg {
 }
 
 /// `--threshold`: a number ≥ 0, `inf`, `learned` or `quantile:Q`.
-fn parse_threshold(text: &str) -> Result<ThresholdArg> {
+pub(super) fn parse_threshold(text: &str) -> Result<ThresholdArg> {
     let wrong =
         || format!("--threshold `{text}` must be a number ≥ 0, `inf`, `learned` or `quantile:Q`");
     Ok(match text.split_once(':') {
@@ -118,54 +114,54 @@ fn fixed_threshold(text: &str) -> Result<ConflictLevel> {
 #[derive(Debug, Args)]
 pub struct TrainArgs {
     /// Dataset folder of the sample trajectory (it must have ground-truth poses).
-    dataset: PathBuf,
+    pub(super) dataset: PathBuf,
     /// Output model file (JSON): self-contained, `track --model` needs nothing else.
     #[arg(long)]
-    out: PathBuf,
+    pub(super) out: PathBuf,
     /// A dataset of a validation motion (with ground truth), for what the method learns on
     /// held-out frames (the evidential tracker: each feature's own error and the conflict
     /// threshold, §4.3).
     #[arg(long)]
-    validation: Option<PathBuf>,
+    pub(super) validation: Option<PathBuf>,
     /// The estimation method: any registered one (`evidential`, `evidential_temporal`,
     /// `continuous`, `continuous_temporal`, `knn`, `gp`, `particle_filter`, `centre`).
     #[arg(long, default_value = "evidential", value_parser = parse_method)]
-    method: Method,
+    pub(super) method: Method,
     /// Take the method's settings from this scenario file's sections (its `[knn]`, `[track]`,
     /// …); the options below and --set then replace values in them. Default: the built-in
     /// scenario's settings.
     #[arg(long)]
-    scenario: Option<PathBuf>,
+    pub(super) scenario: Option<PathBuf>,
     /// Replace a setting by its dotted scenario path, as a sweep variant does (`--set knn.k=8`,
     /// `--set 'continuous.selection={ policy = "lowest_conflict", min_size = 5 }'`); repeatable.
     /// The value is TOML (a bare word is a string).
     #[arg(long = "set", value_name = "PATH=VALUE", value_parser = parse_setting)]
-    set: Vec<(String, toml::Value)>,
+    pub(super) set: Vec<(String, toml::Value)>,
     /// HMM state counts (`model.states`): one for every feature (`3`) or one per feature
     /// (`2,2,2,3,3,2`). Default without --scenario: the paper's, 2,2,2,3,3,2 for the size
     /// functions then 3,2 for the barycentre.
     #[arg(long)]
-    states: Option<String>,
+    pub(super) states: Option<String>,
     /// Tune each feature's state count by BIC between these bounds (`2..5`, `model.tuning`).
     #[arg(long)]
-    tune_bic: Option<String>,
+    pub(super) tune_bic: Option<String>,
     /// Feature configuration (TOML); default: the paper's 6 size functions.
     #[arg(long)]
-    config: Option<PathBuf>,
+    pub(super) config: Option<PathBuf>,
     /// Add the barycentre features to the default configuration.
     #[arg(long, conflicts_with = "config")]
-    barycentre: bool,
+    pub(super) barycentre: bool,
     /// Seed of the EM initialisations (`model.seed`).
     #[arg(long, default_value_t = 1)]
-    seed: u64,
+    pub(super) seed: u64,
     /// k-NN: the number of neighbours (`knn.k`).
     #[arg(long)]
-    k: Option<usize>,
+    pub(super) k: Option<usize>,
     /// k-NN: how the neighbours' poses are weighted (`knn.weights`).
     #[arg(long, value_enum)]
-    weights: Option<WeightsArg>,
+    pub(super) weights: Option<WeightsArg>,
     #[command(flatten)]
-    track: TrackOptions,
+    pub(super) track: TrackOptions,
 }
 
 /// `--method`: a registered method's name.
@@ -188,7 +184,7 @@ fn parse_setting(text: &str) -> Result<(String, toml::Value), String> {
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
-enum WeightsArg {
+pub(super) enum WeightsArg {
     /// Every neighbour counts the same.
     Uniform,
     /// Neighbours count as 1 / distance.
@@ -212,7 +208,7 @@ pub struct TrackArgs {
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum EstimatorArg {
+pub(super) enum EstimatorArg {
     /// Σ Pl(q) q over the sample poses, with relative plausibilities.
     WeightedMean,
     /// The sample pose of highest plausibility.
@@ -222,7 +218,7 @@ enum EstimatorArg {
 }
 
 impl EstimatorArg {
-    fn rule(self) -> PoseRule {
+    pub(super) fn rule(self) -> PoseRule {
         match self {
             EstimatorArg::WeightedMean => PoseRule::WeightedMean,
             EstimatorArg::Map => PoseRule::Map,
@@ -232,12 +228,12 @@ impl EstimatorArg {
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum ConstructorArg {
+pub(super) enum ConstructorArg {
     Bayesian,
     Consonant,
 }
 
-fn parse_selection(text: &str) -> Result<SelectionPolicy> {
+pub(super) fn parse_selection(text: &str) -> Result<SelectionPolicy> {
     let min_size = |n: &str| {
         n.parse::<usize>()
             .ok()
@@ -256,7 +252,7 @@ fn parse_selection(text: &str) -> Result<SelectionPolicy> {
     })
 }
 
-fn parse_counts(text: &str, what: &str) -> Result<StateCounts> {
+pub(super) fn parse_counts(text: &str, what: &str) -> Result<StateCounts> {
     let counts: Vec<usize> = text
         .split(',')
         .map(|c| c.trim().parse::<usize>())
@@ -271,7 +267,7 @@ fn parse_counts(text: &str, what: &str) -> Result<StateCounts> {
 }
 
 /// The paper's state count for one of its features (§6.2).
-fn paper_states(feature: &str) -> Result<usize> {
+pub(super) fn paper_states(feature: &str) -> Result<usize> {
     Ok(match feature {
         "size_line3" | "size_line4" | "barycentre_x" => 3,
         "size_line0" | "size_line1" | "size_line2" | "size_line5" | "barycentre_y" => 2,
@@ -321,7 +317,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         missing_penalty: dataset.workspace_diagonal(),
         provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };
-    let settings = train_settings(args, &names, validation.is_some())?;
+    let settings = super::train_settings::train_settings(args, &names, validation.is_some())?;
     let method = args.method;
     let bar = spinner(&format!("fit {method}"));
     let estimator = method.fit(&settings, &training);
@@ -394,165 +390,6 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         args.out.display()
     );
     Ok(ExitCode::SUCCESS)
-}
-
-/// A setting's value as TOML.
-fn toml_of<T: serde::Serialize>(value: &T) -> Result<toml::Value> {
-    toml::Value::try_from(value).context("a setting has no TOML form")
-}
-
-/// The settings `train` fits with, built as a scenario's are: the `--scenario` file's (or the
-/// built-in scenario's) sections, the options and `--set` laid over them, then the method's
-/// registry checks. Every option must name a section the method reads.
-fn train_settings(
-    args: &TrainArgs,
-    names: &[String],
-    has_validation: bool,
-) -> Result<EstimatorSettings> {
-    let method = args.method;
-    let reads = |section: &str| method.entry().sections.contains(&section);
-    let base = match &args.scenario {
-        Some(path) => {
-            // As written (random paths' seeds not yet derived: they need not fit TOML's i64).
-            let set = ScenarioSet::load(path)?;
-            let first = set
-                .variants
-                .first()
-                .with_context(|| format!("{} has no scenario", path.display()))?;
-            toml::from_str::<Scenario>(&first.to_toml()?)
-                .with_context(|| format!("reading back the settings of {}", path.display()))?
-        }
-        None => Scenario {
-            name: "train".into(),
-            ..Scenario::default()
-        },
-    };
-    let mut values: Vec<(String, toml::Value)> = Vec::new();
-    let mut put = |option: &str, path: &str, value: toml::Value| -> Result<()> {
-        let section = path.split('.').next().unwrap_or(path);
-        let section = match section {
-            "learn_threshold" | "threshold_rule" => "track",
-            other => other,
-        };
-        if !reads(section) {
-            bail!(
-                "{option} sets `{path}`, which `{method}` does not read (it reads {}): leave it \
-                 out or pick a method that has it",
-                match method.entry().sections {
-                    [] => "no settings".to_string(),
-                    sections => sections
-                        .iter()
-                        .map(|s| format!("[{s}]"))
-                        .collect::<Vec<_>>()
-                        .join(", "),
-                }
-            );
-        }
-        values.push((path.to_string(), value));
-        Ok(())
-    };
-    if args.scenario.is_none() && reads("model") && args.states.is_none() {
-        let states: Vec<usize> = names
-            .iter()
-            .map(|n| paper_states(n))
-            .collect::<Result<_>>()?;
-        put(
-            "the paper's state counts",
-            "model.states",
-            toml_of(&StateCounts::PerFeature(states))?,
-        )?;
-    }
-    if reads("model") {
-        put("--seed", "model.seed", toml_of(&args.seed)?)?;
-    }
-    if let Some(text) = &args.states {
-        put(
-            "--states",
-            "model.states",
-            toml_of(&parse_counts(text, "--states")?)?,
-        )?;
-    }
-    if let Some(bounds) = &args.tune_bic {
-        let (low, high) = bounds
-            .split_once("..")
-            .with_context(|| format!("--tune-bic `{bounds}` must look like `2..5`"))?;
-        let tuning = Tuning::Bic {
-            min_states: parse_counts(low, "--tune-bic lower bound")?,
-            max_states: parse_counts(high, "--tune-bic upper bound")?,
-        };
-        put("--tune-bic", "model.tuning", toml_of(&tuning)?)?;
-    }
-    if let Some(k) = args.k {
-        put("--k", "knn.k", toml_of(&k)?)?;
-    }
-    if let Some(weights) = args.weights {
-        put("--weights", "knn.weights", toml_of(&weights)?)?;
-    }
-    let track = &args.track;
-    if let Some(c) = track.constructor {
-        let constructor = match c {
-            ConstructorArg::Bayesian => Constructor::Bayesian,
-            ConstructorArg::Consonant => Constructor::Consonant,
-        };
-        put("--constructor", "track.constructor", toml_of(&constructor)?)?;
-    }
-    if let Some(e) = track.estimator {
-        put("--estimator", "track.estimator", toml_of(&e.rule())?)?;
-    }
-    // The conflict threshold and the selection live in [track] for the trackers on HMM
-    // frames and in [continuous] for those on feature maps: one option for both.
-    let (threshold, learn, rule, selection) = if reads("track") {
-        (
-            "track.conflict_threshold",
-            "learn_threshold",
-            "threshold_rule",
-            "track.selection",
-        )
-    } else {
-        (
-            "continuous.conflict_threshold",
-            "continuous.learn_threshold",
-            "continuous.threshold_rule",
-            "continuous.selection",
-        )
-    };
-    if let Some(text) = &track.selection {
-        put("--selection", selection, toml_of(&parse_selection(text)?)?)?;
-    }
-    match track
-        .threshold
-        .as_deref()
-        .map(parse_threshold)
-        .transpose()?
-    {
-        Some(ThresholdArg::Fixed(level)) => {
-            put("--threshold", threshold, toml_of(&level)?)?;
-            put("--threshold", learn, toml::Value::Boolean(false))?;
-        }
-        Some(ThresholdArg::Learned(chosen)) => {
-            put("--threshold", learn, toml::Value::Boolean(true))?;
-            if let Some(r) = chosen {
-                put("--threshold", rule, toml_of(&r)?)?;
-            }
-        }
-        // Without a scenario, a validation dataset teaches the evidential trackers their
-        // threshold, as `train` always did.
-        None if args.scenario.is_none() && has_validation && reads("track") => {
-            put("--validation", learn, toml::Value::Boolean(true))?;
-        }
-        None => {}
-    }
-    for (path, value) in &args.set {
-        put("--set", path, value.clone())?;
-    }
-    let scenario = Scenario {
-        estimators: vec![method],
-        ..base.with_values(&values)?
-    };
-    Ok(scenario.check_estimators(&SettingsContext {
-        feature_names: names.to_vec(),
-        has_validation,
-    })?)
 }
 
 pub fn track(args: &TrackArgs) -> Result<ExitCode> {
