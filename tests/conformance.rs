@@ -134,23 +134,51 @@ fn over_time(estimator: &dyn PoseEstimator, data: &Data) -> Vec<PoseEstimate> {
         .collect()
 }
 
-/// The first list of [x, y] pairs in a model file (its sample poses or their like).
-fn first_poses(value: &mut serde_json::Value) -> Option<&mut serde_json::Value> {
+/// Moves the first pose of a model file (a field named like `poses`, `centre`, or the corners
+/// `min`/`max` of the centre baseline's box, in an inner
+/// model file too) to `to`; false when the file holds none.
+fn move_first_pose(value: &mut serde_json::Value, to: [f64; 2]) -> bool {
     let is_pair = |v: &serde_json::Value| {
         v.as_array()
             .is_some_and(|p| p.len() == 2 && p.iter().all(|x| x.is_f64()))
     };
     match value {
-        serde_json::Value::Array(items) if !items.is_empty() && items.iter().all(is_pair) => {
-            Some(value)
+        serde_json::Value::Object(map) => {
+            for (key, v) in map.iter_mut() {
+                if key == "provenance" {
+                    continue;
+                }
+                if key.contains("pose") || ["centre", "min", "max"].contains(&key.as_str()) {
+                    if is_pair(v) {
+                        *v = serde_json::json!(to);
+                        return true;
+                    }
+                    if let Some(items) = v
+                        .as_array_mut()
+                        .filter(|i| !i.is_empty() && i.iter().all(is_pair))
+                    {
+                        items[0] = serde_json::json!(to);
+                        return true;
+                    }
+                }
+                if move_first_pose(v, to) {
+                    return true;
+                }
+            }
+            false
         }
-        serde_json::Value::Array(items) => items.iter_mut().find_map(first_poses),
-        serde_json::Value::Object(map) => map
-            .iter_mut()
-            .filter(|(k, _)| k.as_str() != "provenance")
-            .find_map(|(_, v)| first_poses(v)),
-        serde_json::Value::String(_) => None,
-        _ => None,
+        serde_json::Value::Array(items) => items.iter_mut().any(|v| move_first_pose(v, to)),
+        serde_json::Value::String(text) => {
+            let Ok(mut inner) = serde_json::from_str::<serde_json::Value>(text) else {
+                return false;
+            };
+            let moved = inner.is_object() && move_first_pose(&mut inner, to);
+            if moved {
+                *text = serde_json::to_string_pretty(&inner).unwrap();
+            }
+            moved
+        }
+        _ => false,
     }
 }
 
@@ -262,9 +290,10 @@ pub fn check_method(method: Method, settings: &EstimatorSettings, data: &Data, o
 
     // Poses beyond the workspace are refused.
     let mut value: serde_json::Value = serde_json::from_str(&json).unwrap();
-    let poses = first_poses(&mut value)
-        .unwrap_or_else(|| panic!("{method}: the model file holds no poses to check"));
-    poses[0] = serde_json::json!([WORKSPACE.x_max + 100.0, WORKSPACE.y_max]);
+    assert!(
+        move_first_pose(&mut value, [WORKSPACE.x_max + 100.0, WORKSPACE.y_max]),
+        "{method}: the model file holds no poses to check"
+    );
     refused(
         method,
         &bad,
