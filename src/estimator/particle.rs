@@ -399,10 +399,7 @@ pub(crate) fn check_settings(
     settings: &super::EstimatorSettings,
     context: &super::SettingsContext,
 ) -> Result<(), String> {
-    settings
-        .temporal
-        .check()
-        .map_err(|e| format!("[temporal]: {e}"))?;
+    super::motion::check_temporal(&settings.temporal, None)?;
     settings
         .particle_filter
         .check()

@@ -325,21 +325,15 @@ pub(crate) fn check_settings(
     settings: &super::EstimatorSettings,
     context: &super::SettingsContext,
 ) -> Result<(), String> {
-    settings
-        .temporal
-        .check()
-        .map_err(|e| format!("[temporal]: {e}"))?;
-    if matches!(
-        settings.evidential.track.selection,
-        crate::track::SelectionPolicy::Splitting { .. }
-    ) {
-        return Err(
-            "[track]: the temporal evidential tracker takes `selection` largest_subset or \
-             lowest_conflict, not splitting: list the methods without \"evidential_temporal\" \
-             in `estimators`"
-                .into(),
-        );
-    }
+    super::motion::check_temporal(
+        &settings.temporal,
+        Some((
+            &settings.evidential.track.selection,
+            "track",
+            "the temporal evidential tracker",
+            TemporalEvidential::METHOD,
+        )),
+    )?;
     super::evidential::check_discrete_frames(settings, context)
 }
 

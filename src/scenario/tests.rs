@@ -236,3 +236,30 @@ fn a_checked_scenario_written_as_toml_reads_back_as_the_same_run() {
         assert_eq!(again.base.to_toml().unwrap(), toml);
     }
 }
+
+#[test]
+fn the_temporal_trackers_refuse_splitting_through_their_registry_checks() {
+    for (method, section, expected) in [
+        (
+            "evidential_temporal",
+            "track",
+            "[track]: the temporal evidential tracker takes `selection` largest_subset or \
+             lowest_conflict, not splitting: list the methods without \"evidential_temporal\"",
+        ),
+        (
+            "continuous_temporal",
+            "continuous",
+            "[continuous]: the continuous tracker over time takes `selection` largest_subset or \
+             lowest_conflict, not splitting: list the methods without \"continuous_temporal\"",
+        ),
+    ] {
+        let text = format!(
+            "name = \"s\"\nestimators = [\"{method}\"]\n[{section}]\n\
+             selection = {{ policy = \"splitting\", min_size = 2 }}\n"
+        );
+        let error = ScenarioSet::parse(&text, "s.toml").unwrap_err().to_string();
+        assert!(error.contains(expected), "{error}");
+        let fine = text.replace("splitting", "lowest_conflict");
+        assert!(ScenarioSet::parse(&fine, "s.toml").is_ok(), "{fine}");
+    }
+}

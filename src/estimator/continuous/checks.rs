@@ -1,7 +1,6 @@
 //! The scenario checks of the methods on the continuous feature maps, for their registry entries.
 
 use super::MAX_CONTINUOUS_FEATURES;
-use crate::track::SelectionPolicy;
 
 /// The scenario checks of the continuous tracker (and of every method on its feature maps): the
 /// `[continuous]` section, at most [`MAX_CONTINUOUS_FEATURES`] features, groups no larger than
@@ -38,20 +37,14 @@ pub(crate) fn check_temporal_settings(
     settings: &crate::estimator::EstimatorSettings,
     context: &crate::estimator::SettingsContext,
 ) -> Result<(), String> {
-    settings
-        .temporal
-        .check()
-        .map_err(|e| format!("[temporal]: {e}"))?;
-    if matches!(
-        settings.continuous.selection,
-        SelectionPolicy::Splitting { .. }
-    ) {
-        return Err(
-            "[continuous]: the continuous tracker over time takes `selection` largest_subset \
-             or lowest_conflict, not splitting: list the methods without \
-             \"continuous_temporal\" in `estimators`"
-                .into(),
-        );
-    }
+    crate::estimator::motion::check_temporal(
+        &settings.temporal,
+        Some((
+            &settings.continuous.selection,
+            "continuous",
+            "the continuous tracker over time",
+            super::ContinuousTemporal::METHOD,
+        )),
+    )?;
     check_settings(settings, context)
 }

@@ -110,6 +110,25 @@ impl TemporalSettings {
 
 /// α as given, or learned on the validation motion: the candidate with the lowest
 /// `error(α)`, the largest among ties. `None` when it is neither given nor learnable
+/// The scenario checks every temporal method shares: the `[temporal]` section and, for the
+/// trackers that weigh a frame's chosen group against the past, no splitting (`section` holds
+/// their `selection`, `who` and `name` name the method in the message).
+pub(crate) fn check_temporal(
+    temporal: &TemporalSettings,
+    splitting_refused: Option<(&crate::track::SelectionPolicy, &str, &str, &str)>,
+) -> Result<(), String> {
+    temporal.check().map_err(|e| format!("[temporal]: {e}"))?;
+    match splitting_refused {
+        Some((crate::track::SelectionPolicy::Splitting { .. }, section, who, name)) => {
+            Err(format!(
+                "[{section}]: {who} takes `selection` largest_subset or lowest_conflict, not \
+             splitting: list the methods without \"{name}\" in `estimators`"
+            ))
+        }
+        _ => Ok(()),
+    }
+}
+
 /// (no validation motion with timestamps).
 pub(crate) fn learned_reliability(
     settings: &TemporalSettings,
