@@ -45,12 +45,14 @@ pub(super) fn train_settings(
     };
     let mut values: Vec<(String, toml::Value)> = Vec::new();
     let mut put = |option: &str, path: &str, value: toml::Value| -> Result<()> {
-        let section = path.split('.').next().unwrap_or(path);
-        let section = match section {
-            "learn_threshold" | "threshold_rule" => "track",
-            other => other,
+        // A section may be dotted (`methods.NAME` of a registered method); the evidential
+        // threshold learning is spelled at the top level but belongs with `[track]`.
+        let in_section = |s: &&str| path == *s || path.starts_with(&format!("{s}."));
+        let known = match path {
+            "learn_threshold" | "threshold_rule" => reads("track"),
+            _ => method.entry().sections.iter().any(in_section),
         };
-        if !reads(section) {
+        if !known {
             bail!(
                 "{option} sets `{path}`, which `{method}` does not read (it reads {}): leave it \
                  out or pick a method that has it",
