@@ -54,6 +54,11 @@ impl Rect {
         (self.x_max - self.x_min).hypot(self.y_max - self.y_min)
     }
 
+    /// Its area (mm²).
+    pub fn area(&self) -> f64 {
+        (self.x_max - self.x_min) * (self.y_max - self.y_min)
+    }
+
     /// How far outside the rectangle a pose may lie and still count as in it: 5 % of its larger
     /// side (simulated poses settle within 0.0001 mm of the 19 mm workspace's edges).
     pub fn slack(&self) -> f64 {

@@ -185,7 +185,7 @@ fn move_first_pose(value: &mut serde_json::Value, to: [f64; 2]) -> bool {
 /// Loads `text` as `method`'s file at `path` and expects a refusal that names the path.
 fn refused(method: Method, path: &Path, text: &str, what: &str) -> String {
     std::fs::write(path, text).unwrap();
-    let error = match (method.entry().load)(path) {
+    let error = match evitrack::estimator::load_text(method, path, text) {
         Ok(_) => panic!("{method}: {what} was loaded"),
         Err(e) => e.to_string(),
     };
@@ -219,8 +219,24 @@ pub fn check_method(method: Method, settings: &EstimatorSettings, data: &Data, o
         json,
         "{method}: round trip changed the file"
     );
-    let by_entry = (method.entry().load)(&file).unwrap();
+    let by_entry = evitrack::estimator::load_text(method, &file, &json).unwrap();
     assert_eq!(by_entry.to_json().unwrap(), json);
+    // The calibration learned on the validation motion rides in the file; a broken one is refused.
+    let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let calibration = value
+        .get("calibration")
+        .expect("fitted with a validation motion");
+    assert_eq!(calibration["validation_frames"], data.valid_rows.len());
+    let mut broken = value.clone();
+    broken["calibration"]["floor"] = serde_json::json!(-1.0);
+    let broken = serde_json::to_string(&broken).unwrap();
+    let error = refused(
+        method,
+        &dir.path().join("broken.json"),
+        &broken,
+        "a negative floor",
+    );
+    assert!(error.contains("calibration.floor"), "{method}: {error}");
     let estimates = per_frame(fitted.as_ref(), data);
     assert_eq!(bits(&estimates), bits(&per_frame(loaded.as_ref(), data)));
     assert_eq!(

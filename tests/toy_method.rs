@@ -72,8 +72,8 @@ impl Toy {
         })
     }
 
-    fn load(path: &Path) -> Result<Self, EstimatorError> {
-        let toy = model_file::load(path, |text| {
+    fn from_text(path: &Path, text: &str) -> Result<Self, EstimatorError> {
+        let toy = model_file::parse_at(path, text, |text| {
             let toy: Toy = model_file::parse(text, NAME, 1)?;
             toy.header.provenance.check_poses("poses", &toy.poses)?;
             Ok::<_, ModelFileError>(toy)
@@ -121,6 +121,7 @@ impl PoseEstimator for Toy {
             conflict_level: None,
             detection_score: None,
             region: None,
+            covariance: None,
             flags: evitrack::estimator::EstimateFlags {
                 missing: (0..features.len())
                     .filter(|&i| features[i].is_none())
@@ -147,7 +148,7 @@ static TOY: MethodEntry = MethodEntry {
         ToySettings::of(settings).map(|_| ())
     },
     fit: |settings, data| Ok(Box::new(Toy::fit(settings, data)?)),
-    load: |path| Ok(Box::new(Toy::load(path)?)),
+    load: |path, text| Ok(Box::new(Toy::from_text(path, text)?)),
     shared_fit: None,
 };
 

@@ -325,7 +325,8 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     let estimator = estimator?;
     evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
         .with_context(|| format!("writing {}", args.out.display()))?;
-    let Some(estimator) = (estimator.as_ref() as &dyn std::any::Any).downcast_ref::<Evidential>()
+    let Some(estimator) = (estimator::underlying(estimator.as_ref()) as &dyn std::any::Any)
+        .downcast_ref::<Evidential>()
     else {
         eprintln!(
             "trained `{}` on {} sample poses; model written to {}",
@@ -397,7 +398,7 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     let loaded = estimator::load(&args.model)
         .with_context(|| format!("loading the model {}", args.model.display()))?;
     let estimator: Box<dyn PoseEstimator> = if args.track.given() {
-        let evidential = (loaded.as_ref() as &dyn std::any::Any)
+        let evidential = (estimator::underlying(loaded.as_ref()) as &dyn std::any::Any)
             .downcast_ref::<Evidential>()
             .with_context(|| {
                 format!(
@@ -408,6 +409,12 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
                 )
             })?;
         let settings = args.track.apply(evidential.model().track_settings())?;
+        if (loaded.as_ref() as &dyn std::any::Any).is::<estimator::Calibrated>() {
+            eprintln!(
+                "note: the model's regions and abstentions were calibrated with its own tracker \
+                 settings; with these they are left out"
+            );
+        }
         Box::new(evidential.with_track_settings(settings)?)
     } else {
         loaded

@@ -327,6 +327,16 @@ fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<(
         "left_out_recall",
         "region_coverage",
         "region_mean_area",
+        "coverage_clean",
+        "coverage_corrupted",
+        "abstained_clean",
+        "abstained_corrupted",
+        "aurc",
+        "oracle_aurc",
+        "error_at_80",
+        "error_at_95",
+        "aurc_clean",
+        "aurc_corrupted",
     ])?;
     let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     for s in all_runs {
@@ -334,6 +344,7 @@ fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<(
             let evidential = evidential_of(s, m);
             let states = states_text(evidential, " ");
             let f = m.faults.as_ref();
+            let c = m.confidence.as_ref();
             let expected = match evidential {
                 Some(_) => s.expect.max_mean_error,
                 None => s
@@ -370,6 +381,16 @@ fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<(
                 num(f.and_then(|f| f.left_out_recall)),
                 num(m.region.as_ref().map(|r| r.coverage)),
                 num(m.region.as_ref().map(|r| r.mean_area)),
+                num(c.and_then(|c| c.coverage_clean)),
+                num(c.and_then(|c| c.coverage_corrupted)),
+                c.map_or(String::new(), |c| c.abstained_clean.to_string()),
+                c.map_or(String::new(), |c| c.abstained_corrupted.to_string()),
+                num(c.map(|c| c.all.aurc)),
+                num(c.map(|c| c.all.oracle_aurc)),
+                num(c.map(|c| c.all.error_at_80)),
+                num(c.map(|c| c.all.error_at_95)),
+                num(c.and_then(|c| c.clean.as_ref()).map(|r| r.aurc)),
+                num(c.and_then(|c| c.corrupted.as_ref()).map(|r| r.aurc)),
             ])?;
         }
     }

@@ -107,58 +107,91 @@ pub(super) fn fault_table(summaries: &[&RunSummary]) -> Option<Table> {
     any.then_some(table)
 }
 
-/// For methods with plausibility regions: on the clean frames, the share of regions holding the
-/// true pose and their size. `None` when no method gave regions.
-pub(super) fn region_table(summaries: &[&RunSummary]) -> Option<Table> {
+/// Whether each method knows when it is wrong: its calibrated regions' coverage and its
+/// abstentions on clean and corrupted frames, the median area of the regions it answered with,
+/// and its risk–coverage (AURC beside the oracle's, the mean error of its surest 80 % and 95 %).
+/// `None` when no method estimated anything.
+pub(super) fn confidence_table(summaries: &[&RunSummary]) -> Option<Table> {
     let mut table = Table::new([
         "scenario",
         "method",
-        "clean frames",
-        "no region",
         "coverage",
-        "mean area (mm²)",
-        "median area (mm²)",
+        "corr. cov.",
+        "abstained",
+        "corr. abst.",
+        "median area",
+        "AURC",
+        "oracle",
+        "err@80%",
+        "err@95%",
     ]);
+    let share = |v: Option<f64>| v.map_or("—".to_string(), |v| format!("{v:.3}"));
     let mut any = false;
     for s in summaries {
         for m in &s.methods {
-            let Some(r) = &m.region else { continue };
+            let Some(c) = &m.confidence else { continue };
             any = true;
+            let corrupted = m.faults.as_ref().map_or(0, |f| f.corrupted_frames);
+            let clean = s.frames - corrupted;
             table.push([
                 s.scenario.clone(),
                 m.method.clone(),
-                r.frames.to_string(),
-                r.frames_without_region.to_string(),
-                format!("{:.3}", r.coverage),
-                format!("{:.5}", r.mean_area),
-                format!("{:.5}", r.median_area),
+                share(c.coverage_clean),
+                share(c.coverage_corrupted),
+                format!("{}/{clean}", c.abstained_clean),
+                if corrupted > 0 {
+                    format!("{}/{corrupted}", c.abstained_corrupted)
+                } else {
+                    "—".to_string()
+                },
+                c.median_area_answered
+                    .map_or("—".to_string(), |a| format!("{a:.4}")),
+                fmt_mm(Some(c.all.aurc)),
+                fmt_mm(Some(c.all.oracle_aurc)),
+                fmt_mm(Some(c.all.error_at_80)),
+                fmt_mm(Some(c.all.error_at_95)),
             ]);
         }
     }
     any.then_some(table)
 }
 
-/// Prints the error table, the fault table when runs had faults, and the region table when a
-/// method gave plausibility regions.
+/// Prints the error table, the fault table when runs had faults, and the confidence table.
 pub(super) fn print_tables(summaries: &[&RunSummary]) {
     println!("{}", error_table(summaries));
     if let Some(faults) = fault_table(summaries) {
         println!("{faults}");
     }
-    if let Some(regions) = region_table(summaries) {
-        println!("{regions}");
+    if let Some(confidence) = confidence_table(summaries) {
+        println!("{confidence}");
     }
 }
 
 /// Each variant's mean error across seeds, then each comparison's paired difference.
 pub(super) fn seed_tables(report: &SeedReport) -> String {
-    let mut variants = Table::new(["scenario", "method", "seeds", "mean error ± 95 % (mm)"]);
+    let mut variants = Table::new([
+        "scenario",
+        "method",
+        "seeds",
+        "mean error ± 95 % (mm)",
+        "AURC (mm)",
+        "coverage",
+        "corr. coverage",
+        "abstained",
+    ]);
+    let text = |i: &Option<evitrack::report::Interval>, digits| {
+        i.as_ref().map_or("—".to_string(), |i| i.text(digits))
+    };
     for v in &report.variants {
         variants.push([
             v.side.scenario.clone(),
             v.side.method.clone(),
             v.seeds.len().to_string(),
             v.mean_error.text(4),
+            text(&v.aurc, 4),
+            text(&v.coverage_clean, 3),
+            text(&v.coverage_corrupted, 3),
+            text(&v.abstained_clean, 3),
         ]);
     }
     let mut findings = Table::new([

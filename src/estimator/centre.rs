@@ -153,6 +153,8 @@ impl PoseEstimator for Centre {
             group: None,
             conflict_level: None,
             region: None,
+            // Nothing to say frame by frame: its calibrated region is one disc.
+            covariance: None,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()

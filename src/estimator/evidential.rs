@@ -257,6 +257,7 @@ pub(super) fn pose_estimate(frame: FrameEstimate) -> PoseEstimate {
         conflict_level: frame.conflict_level,
         detection_score: frame.full_conflict_level,
         region: None,
+        covariance: frame.uncertainty.map(|u| u.covariance),
         flags: EstimateFlags {
             missing: frame.flags.missing().collect(),
             excluded: frame.flags.excluded,

@@ -354,20 +354,22 @@ impl PoseEstimator for Gp {
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
         let (values, missing) = frame_values(features, self.file.header.feature_names.len())?;
-        let (pose, radius, nearest) = if missing.is_empty() {
+        let (pose, std, nearest) = if missing.is_empty() {
             let values: Vec<f64> = values.iter().map(|v| v.unwrap_or(0.0)).collect();
             let (pose, std, nearest) = self.predict(&values);
-            (Some(pose), Some(std * DISC_90), Some(nearest))
+            (Some(pose), Some(std), Some(nearest))
         } else {
             (None, None, None)
         };
         Ok(PoseEstimate {
             detection_score: nearest,
             pose,
-            uncertainty_radius: radius,
+            uncertainty_radius: std.map(|s| s * DISC_90),
             group: None,
             conflict_level: None,
             region: None,
+            // The same predictive variance for both coordinates (one kernel).
+            covariance: std.map(|s| [[s * s, 0.0], [0.0, s * s]]),
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()

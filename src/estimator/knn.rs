@@ -250,26 +250,30 @@ impl PoseEstimator for Knn {
             KnnWeights::Distance => neighbours.iter().map(|n| 1.0 / n.1).collect(),
         };
         let total: f64 = weights.iter().sum();
-        let (pose, radius) = if neighbours.is_empty() || !(total > 0.0 && total.is_finite()) {
-            (None, None)
-        } else {
-            let mut mean = [0.0; 2];
-            for (&(i, _), w) in neighbours.iter().zip(&weights) {
-                for (m, p) in mean.iter_mut().zip(self.file.sample_poses[i]) {
-                    *m += w * p;
+        let (pose, radius, covariance) =
+            if neighbours.is_empty() || !(total > 0.0 && total.is_finite()) {
+                (None, None, None)
+            } else {
+                let mut mean = [0.0; 2];
+                for (&(i, _), w) in neighbours.iter().zip(&weights) {
+                    for (m, p) in mean.iter_mut().zip(self.file.sample_poses[i]) {
+                        *m += w * p;
+                    }
                 }
-            }
-            let mean = mean.map(|m| m / total);
-            let spread: f64 = neighbours
-                .iter()
-                .zip(&weights)
-                .map(|(&(i, _), w)| {
+                let mean = mean.map(|m| m / total);
+                let mut moments = [[0.0; 2]; 2];
+                for (&(i, _), w) in neighbours.iter().zip(&weights) {
                     let p = self.file.sample_poses[i];
-                    w * ((p[0] - mean[0]).powi(2) + (p[1] - mean[1]).powi(2))
-                })
-                .sum();
-            (Some(mean), Some((spread / total).sqrt()))
-        };
+                    let d = [p[0] - mean[0], p[1] - mean[1]];
+                    for (row, a) in moments.iter_mut().zip(d) {
+                        for (m, b) in row.iter_mut().zip(d) {
+                            *m += w * a * b / total;
+                        }
+                    }
+                }
+                let spread = (moments[0][0] + moments[1][1]).sqrt();
+                (Some(mean), Some(spread), Some(moments))
+            };
         Ok(PoseEstimate {
             detection_score: neighbours.first().map(|n| n.1),
             pose,
@@ -277,6 +281,7 @@ impl PoseEstimator for Knn {
             group: None,
             conflict_level: None,
             region: None,
+            covariance,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()

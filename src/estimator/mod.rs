@@ -7,6 +7,7 @@
 //! implementation. A fitted estimator is self-contained: [`PoseEstimator::to_json`] writes a
 //! model file that [`load`] reads back into an estimator giving the same estimates.
 
+mod calibration;
 mod centre;
 mod continuous;
 mod evidential;
@@ -20,6 +21,7 @@ mod samples;
 mod temporal;
 pub mod test_maps;
 
+pub use calibration::{underlying, Calibrated, Calibration, ConfidenceSettings};
 pub use centre::{Centre, CentreSettings};
 pub use continuous::{
     Continuous, ContinuousSettings, ContinuousTemporal, SurrogateHyperparameters,
@@ -115,9 +117,16 @@ pub struct PoseEstimate {
     /// corrupted (+∞: impossible): the level of conflict of every usable feature for the
     /// evidential tracker, the standardised distance to the nearest sample for k-NN and the GP.
     pub detection_score: Option<f64>,
-    /// The region of poses the method finds plausible at its stated level, for methods that
-    /// give one (the continuous evidential tracker).
+    /// The region of poses the method finds plausible: calibrated on the validation motion to
+    /// hold the truth on the stated share of clean frames ([`Calibration`]), or the whole
+    /// workspace when the method abstains; the continuous tracker's own χ² region when the
+    /// model has no calibration.
     pub region: Option<PlausibilityRegion>,
+    /// The method's own covariance of the pose (mm²): the shape its calibrated region takes
+    /// (the plausibility's spread, the Laplace covariance, the GP's predictive variance, the
+    /// neighbours' or particles' spread, the sample poses' for the centre).
+    #[serde(default)]
+    pub covariance: Option<[[f64; 2]; 2]>,
     /// What deserves attention in this frame.
     pub flags: EstimateFlags,
 }
@@ -129,7 +138,8 @@ pub struct PlausibilityRegion {
     pub centre: [f64; 2],
     /// Symmetric positive-definite shape matrix (mm⁻²).
     pub shape: [[f64; 2]; 2],
-    /// The relative plausibility its boundary holds (Pl(q)/Pl(centre)).
+    /// The relative plausibility its boundary holds (Pl(q)/Pl(centre)) for the continuous
+    /// tracker's own region; the nominal coverage for a calibrated one; 1 for the whole workspace.
     pub level: f64,
     /// Its area (mm²).
     pub area: f64,
@@ -176,6 +186,18 @@ impl PlausibilityRegion {
     }
 }
 
+/// The covariance (mm²) of a Laplace approximation: the inverse of the curvature of ½χ² at its
+/// minimum, with a ridge of a millionth of its trace so that a curvature along one direction
+/// only (one feature: a level curve) gives a huge variance along the curve rather than none.
+pub(crate) fn laplace_covariance(curvature: [[f64; 2]; 2]) -> Option<[[f64; 2]; 2]> {
+    let [[a, b], [c, d]] = curvature;
+    let b = 0.5 * (b + c);
+    let ridge = 1e-6 * (a + d).abs();
+    let (a, d) = (a + ridge, d + ridge);
+    let det = a * d - b * b;
+    (det.is_finite() && det > 0.0 && a > 0.0).then(|| [[d / det, -b / det], [-b / det, a / det]])
+}
+
 /// Flags of one frame's estimate (all empty or false on a clean frame).
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct EstimateFlags {
@@ -193,6 +215,11 @@ pub struct EstimateFlags {
     /// The belief carried from the past frames conflicted with this frame's and was left out:
     /// the past was dropped and tracking restarts from this frame (temporal evidential tracker).
     pub past_rejected: bool,
+    /// The method's own evidence says it cannot tell (its detection score beyond what clean
+    /// validation frames show, total conflict, no eligible group, or a region too large): the
+    /// pose is kept for reference, the region covers the whole workspace.
+    #[serde(default)]
+    pub abstained: bool,
 }
 
 impl PoseEstimate {
@@ -224,6 +251,9 @@ impl PoseEstimate {
         }
         if flags.past_rejected {
             parts.push("past_rejected".into());
+        }
+        if flags.abstained {
+            parts.push("abstained".into());
         }
         if self.pose.is_none() {
             parts.push("no_estimate".into());
@@ -393,7 +423,8 @@ impl DatasetFeatures {
 
 /// Reads a model file written by any registered estimator's [`PoseEstimator::to_json`] and
 /// returns the estimator it describes: its `method` field picks the registry entry that reads it
-/// (`evidential` when absent, so that old evidential files are named as such).
+/// (`evidential` when absent, so that old evidential files are named as such); a `calibration`
+/// field wraps it in [`Calibrated`].
 ///
 /// # Errors
 /// [`EstimatorError::Io`] when the file cannot be read; [`EstimatorError::File`] naming the
@@ -405,7 +436,7 @@ pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         .and_then(|v| v.get("method")?.as_str().map(String::from))
         .unwrap_or_else(|| crate::model::METHOD.to_string());
     match Method::from_name(&name) {
-        Some(method) => (method.entry().load)(path),
+        Some(method) => load_text(method, path, &text),
         None => Err(ModelFileError::File {
             path: path.to_path_buf(),
             source: Box::new(crate::model_file::corrupted(format!(
@@ -415,4 +446,27 @@ pub fn load(path: &Path) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         }
         .into()),
     }
+}
+
+/// Reads `text`, read from `path`, as a model file of `method`: its `calibration`, if any, split
+/// off and checked, the rest read by the method's registry entry (which refuses another
+/// method's file).
+///
+/// # Errors
+/// [`EstimatorError::File`] naming the path and what is wrong.
+pub fn load_text(
+    method: Method,
+    path: &Path,
+    text: &str,
+) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
+    let (text, calibration) =
+        calibration::split_calibration(text).map_err(|e| ModelFileError::File {
+            path: path.to_path_buf(),
+            source: Box::new(crate::model_file::corrupted(e)),
+        })?;
+    let inner = (method.entry().load)(path, &text)?;
+    Ok(match calibration {
+        Some(c) => Box::new(Calibrated::new(inner, c)),
+        None => inner,
+    })
 }

@@ -352,6 +352,19 @@ impl FilterMotion<'_> {
             .map_or(0.0, |(d, _)| *d);
         (mean, radius)
     }
+
+    /// The particles' weighted second moments about `mean` (mm²).
+    fn covariance(&self, mean: [f64; 2]) -> [[f64; 2]; 2] {
+        let mut moments = [[0.0; 2]; 2];
+        for (p, w) in self.particles.iter().zip(&self.weights) {
+            let d = [p[0] - mean[0], p[1] - mean[1]];
+            moments[0][0] += w * d[0] * d[0];
+            moments[0][1] += w * d[0] * d[1];
+            moments[1][1] += w * d[1] * d[1];
+        }
+        moments[1][0] = moments[0][1];
+        moments
+    }
 }
 
 impl MotionTracker for FilterMotion<'_> {
@@ -375,6 +388,7 @@ impl MotionTracker for FilterMotion<'_> {
         let usable = values.iter().any(Option::is_some);
         let score = if usable { self.update(&values) } else { None };
         let (pose, radius) = self.estimate();
+        let covariance = self.covariance(pose);
         self.line.remember(time, score.map(|_| pose), false);
         self.resample_if_degenerate();
         Ok(PoseEstimate {
@@ -384,6 +398,7 @@ impl MotionTracker for FilterMotion<'_> {
             conflict_level: None,
             detection_score: score.or(usable.then_some(f64::INFINITY)),
             region: None,
+            covariance: Some(covariance),
             flags: EstimateFlags {
                 missing,
                 predicted: score.is_none(),

@@ -10,8 +10,11 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::RwLock;
 
+use crate::model_file::parse_at;
+
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
+use super::{Calibrated, Calibration, ConfidenceSettings};
 use super::{
     Centre, CentreSettings, Continuous, ContinuousTemporal, EstimatorError, Evidential, Gp, Knn,
     ParticleFilter, PoseEstimator, TemporalEvidential, TrainingSet,
@@ -46,6 +49,8 @@ pub struct EstimatorSettings {
     pub temporal: TemporalSettings,
     /// The particle filter's.
     pub particle_filter: ParticleSettings,
+    /// The levels every method's calibrated regions and abstentions are held to.
+    pub confidence: ConfidenceSettings,
     /// The sections of registered methods that are not built in, by method name
     /// (`[methods.NAME]` in a scenario file), for their entries to read.
     pub registered: BTreeMap<String, toml::Table>,
@@ -73,8 +78,8 @@ pub type CheckFn = fn(&EstimatorSettings, &SettingsContext) -> Result<(), String
 /// Fits a method on a training set.
 pub type FitFn =
     fn(&EstimatorSettings, &TrainingSet) -> Result<Box<dyn PoseEstimator>, EstimatorError>;
-/// Reads a method's model file.
-pub type LoadFn = fn(&Path) -> Result<Box<dyn PoseEstimator>, EstimatorError>;
+/// Reads a method's model file from its text (the path names it in errors).
+pub type LoadFn = fn(&Path, &str) -> Result<Box<dyn PoseEstimator>, EstimatorError>;
 /// The settings a fit depends on, as text, for methods whose fits runs on identical training
 /// data may share.
 pub type SharedFitFn = fn(&EstimatorSettings) -> Option<String>;
@@ -121,7 +126,10 @@ pub static BUILT_IN: [MethodEntry; 8] = [
         heavy_fit: false,
         check: super::evidential::check_settings,
         fit: |s, data| Ok(Box::new(Evidential::fit(&s.evidential, data)?)),
-        load: |path| Ok(Box::new(Evidential::load(path)?)),
+        load: |path, text| {
+            let model = parse_at(path, text, crate::model::EvidentialModel::from_json)?;
+            Ok(Box::new(Evidential::from_model(model)?))
+        },
         shared_fit: None,
     },
     MethodEntry {
@@ -139,7 +147,13 @@ pub static BUILT_IN: [MethodEntry; 8] = [
                 data,
             )?))
         },
-        load: |path| Ok(Box::new(TemporalEvidential::load(path)?)),
+        load: |path, text| {
+            Ok(Box::new(parse_at(
+                path,
+                text,
+                TemporalEvidential::from_json,
+            )?))
+        },
         shared_fit: None,
     },
     MethodEntry {
@@ -151,7 +165,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
         heavy_fit: true,
         check: super::continuous::check_settings,
         fit: |s, data| Ok(Box::new(Continuous::fit(&s.continuous, data)?)),
-        load: |path| Ok(Box::new(Continuous::load(path)?)),
+        load: |path, text| Ok(Box::new(parse_at(path, text, Continuous::from_json)?)),
         shared_fit: Some(|s| serde_json::to_string(&s.continuous).ok()),
     },
     MethodEntry {
@@ -169,7 +183,13 @@ pub static BUILT_IN: [MethodEntry; 8] = [
                 data,
             )?))
         },
-        load: |path| Ok(Box::new(ContinuousTemporal::load(path)?)),
+        load: |path, text| {
+            Ok(Box::new(parse_at(
+                path,
+                text,
+                ContinuousTemporal::from_json,
+            )?))
+        },
         shared_fit: None,
     },
     MethodEntry {
@@ -181,7 +201,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
         heavy_fit: false,
         check: super::knn::check_settings,
         fit: |s, data| Ok(Box::new(Knn::fit(&s.knn, data)?)),
-        load: |path| Ok(Box::new(Knn::load(path)?)),
+        load: |path, text| Ok(Box::new(parse_at(path, text, Knn::from_json)?)),
         shared_fit: None,
     },
     MethodEntry {
@@ -193,7 +213,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
         heavy_fit: true,
         check: super::gp::check_settings,
         fit: |s, data| Ok(Box::new(Gp::fit(&s.gp, data)?)),
-        load: |path| Ok(Box::new(Gp::load(path)?)),
+        load: |path, text| Ok(Box::new(parse_at(path, text, Gp::from_json)?)),
         shared_fit: Some(|s| serde_json::to_string(&s.gp).ok()),
     },
     MethodEntry {
@@ -212,7 +232,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
                 data,
             )?))
         },
-        load: |path| Ok(Box::new(ParticleFilter::load(path)?)),
+        load: |path, text| Ok(Box::new(parse_at(path, text, ParticleFilter::from_json)?)),
         shared_fit: None,
     },
     MethodEntry {
@@ -224,7 +244,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
         heavy_fit: false,
         check: no_check,
         fit: |_, data| Ok(Box::new(Centre::fit(&CentreSettings::default(), data)?)),
-        load: |path| Ok(Box::new(Centre::load(path)?)),
+        load: |path, text| Ok(Box::new(parse_at(path, text, Centre::from_json)?)),
         shared_fit: None,
     },
 ];
@@ -341,16 +361,23 @@ impl Method {
         (self.0.check)(settings, context)
     }
 
-    /// Fits this method on `data`.
+    /// Fits this method on `data` and, with a validation motion, calibrates its regions and
+    /// abstentions there ([`Calibration`]).
     ///
     /// # Errors
-    /// The method's fitting errors.
+    /// The method's fitting errors, or its errors on a validation frame.
     pub fn fit(
         self,
         settings: &EstimatorSettings,
         data: &TrainingSet,
     ) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
-        (self.0.fit)(settings, data)
+        let fitted = (self.0.fit)(settings, data)?;
+        Ok(
+            match Calibration::learn(fitted.as_ref(), data, &settings.confidence)? {
+                Some(calibration) => Box::new(Calibrated::new(fitted, calibration)),
+                None => fitted,
+            },
+        )
     }
 }
 

@@ -284,6 +284,7 @@ impl MotionTracker for EvidentialMotion<'_> {
         if let Some((pose, uncertainty)) = tracker.estimate_with_weights(&weights) {
             estimate.pose = Some(self.refined(time, &weights).unwrap_or(pose));
             estimate.uncertainty_radius = Some(uncertainty.radius);
+            estimate.covariance = Some(uncertainty.covariance);
             estimate.flags.predicted = true;
             estimate.flags.combination_failed = false;
         }

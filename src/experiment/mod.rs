@@ -222,7 +222,10 @@ pub fn run(
 
     let evidential = estimators
         .iter()
-        .find_map(|e| (e.as_ref() as &dyn std::any::Any).downcast_ref::<Evidential>())
+        .find_map(|e| {
+            (crate::estimator::underlying(e.as_ref()) as &dyn std::any::Any)
+                .downcast_ref::<Evidential>()
+        })
         .map(|e| e.model());
     let summary = RunSummary {
         scenario: s.name.clone(),

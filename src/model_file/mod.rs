@@ -305,7 +305,19 @@ pub fn load<T, E: Into<ModelFileError>>(
     from_json: impl FnOnce(&str) -> Result<T, E>,
 ) -> Result<T, ModelFileError> {
     let text = read_text(path)?;
-    from_json(&text).map_err(|e| ModelFileError::File {
+    parse_at(path, &text, from_json)
+}
+
+/// Parses a model file's `text` read from `path` with `from_json`, naming the path in errors.
+///
+/// # Errors
+/// [`ModelFileError::File`] with the path and what `from_json` refused.
+pub fn parse_at<T, E: Into<ModelFileError>>(
+    path: &Path,
+    text: &str,
+    from_json: impl FnOnce(&str) -> Result<T, E>,
+) -> Result<T, ModelFileError> {
+    from_json(text).map_err(|e| ModelFileError::File {
         path: path.to_path_buf(),
         source: Box::new(e.into()),
     })

@@ -3,7 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{plot_trajectory, write_frames_csv, FrameRecord, ReportError};
+use super::{
+    plot_series, plot_trajectory, write_frames_csv, FrameRecord, PlotSeries, ReportError,
+    CURVE_POINTS,
+};
 use super::{RunSummary, Timings};
 use crate::estimator::PoseEstimator;
 
@@ -49,7 +52,8 @@ pub const SCENARIO_FILE: &str = "scenario.toml";
 /// `track-<motion>.png` per test motion and method (true against estimated positions, like the
 /// paper's Figure 2; the other methods' plots end in `-<method>`), `timings.json` when `timings`
 /// is set (wall times differ between runs, everything else is byte-identical for a scenario and
-/// seed), and last `results.json`, so that a folder with it holds a finished run. Returns the
+/// seed), `risk-coverage.png` (each method's risk–coverage curve over its mean error), and last
+/// `results.json`, so that a folder with it holds a finished run. Returns the
 /// files written.
 pub fn write_run(
     dir: &Path,
@@ -123,6 +127,29 @@ pub fn write_run(
             plot_trajectory(&file, &title, &truth, &estimate, Some(&output.samples))?;
             written.push(file);
         }
+    }
+    // Curves divided by the method's mean error: methods whose errors differ a hundredfold
+    // share one axis, and below 1 means its surest frames are its better ones.
+    let curves: Vec<PlotSeries> = (output.summary.methods.iter())
+        .filter_map(|m| {
+            let rc = &m.confidence.as_ref()?.all;
+            let full = *rc.curve.last()?;
+            (full > 0.0).then(|| PlotSeries {
+                name: m.method.clone(),
+                points: (rc.curve.iter().enumerate())
+                    .map(|(i, r)| (100.0 * (i + 1) as f64 / CURVE_POINTS as f64, r / full))
+                    .collect(),
+            })
+        })
+        .collect();
+    if !curves.is_empty() {
+        let file = dir.join("risk-coverage.png");
+        let title = format!(
+            "{} — mean error of the surest frames, over the method's mean",
+            output.summary.scenario
+        );
+        plot_series(&file, &title, "coverage (%)", "risk / mean error", &curves)?;
+        written.push(file);
     }
     let json = serde_json::to_string_pretty(&output.summary)
         .map_err(|e| write_error(&dir.join(RESULTS_FILE), e))?;

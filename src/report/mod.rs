@@ -1,17 +1,19 @@
 //! Reporting: error statistics, per-frame records and run summaries, the files of a run,
 //! plain-text tables and PNG plots.
 
+mod confidence;
 mod files;
 mod plot;
 mod records;
 mod seeds;
 mod table;
 
+pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
 pub use files::{write_run, RunOutput, RESULTS_FILE, SCENARIO_FILE};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
     detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
-    MethodTimings, RegionSummary, RunSummary, Timings,
+    MethodTimings, RunSummary, Timings,
 };
 pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
 pub use table::Table;

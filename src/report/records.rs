@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::confidence::{ConfidenceSummary, RegionSummary};
 use super::ErrorStats;
 use crate::estimator::{EstimateFlags, PoseEstimate};
 use crate::evidence::ConflictLevel;
@@ -213,55 +214,9 @@ pub struct MethodSummary {
     /// How the plausibility regions fared on the clean frames, for methods that give them.
     #[serde(default)]
     pub region: Option<RegionSummary>,
-}
-
-/// Coverage and size of a method's plausibility regions over the clean frames with a truth.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RegionSummary {
-    /// Clean frames whose estimate came with a region.
-    pub frames: usize,
-    /// Clean frames with an estimate but no bounded region.
-    pub frames_without_region: usize,
-    /// Share of those regions that hold the true pose.
-    pub coverage: f64,
-    /// Mean area of the regions (mm²).
-    pub mean_area: f64,
-    /// Median area (mm²).
-    pub median_area: f64,
-}
-
-impl RegionSummary {
-    /// The summary of one method's `records`; `None` when none has a region.
-    pub fn of(records: &[FrameRecord]) -> Option<Self> {
-        let clean: Vec<&FrameRecord> = (records.iter())
-            .filter(|r| !r.corrupted() && r.estimate.is_some() && r.truth.is_some())
-            .collect();
-        let with: Vec<(&FrameRecord, f64)> = (clean.iter())
-            .filter_map(|r| r.region_area.map(|a| (*r, a)))
-            .collect();
-        if with.is_empty() {
-            return None;
-        }
-        let covered = with
-            .iter()
-            .filter(|(r, _)| r.region_covers == Some(true))
-            .count();
-        let mut areas: Vec<f64> = with.iter().map(|(_, a)| *a).collect();
-        areas.sort_by(f64::total_cmp);
-        let n = areas.len();
-        let median = if n % 2 == 1 {
-            areas[n / 2]
-        } else {
-            0.5 * (areas[n / 2 - 1] + areas[n / 2])
-        };
-        Some(Self {
-            frames: n,
-            frames_without_region: clean.len() - n,
-            coverage: covered as f64 / n as f64,
-            mean_area: areas.iter().sum::<f64>() / n as f64,
-            median_area: median,
-        })
-    }
+    /// Whether it knows when it is wrong: risk–coverage, coverage and abstentions.
+    #[serde(default)]
+    pub confidence: Option<ConfidenceSummary>,
 }
 
 impl MethodSummary {
@@ -291,6 +246,7 @@ impl MethodSummary {
                 .then(|| groups.iter().sum::<usize>() as f64 / records.len().max(1) as f64),
             faults: FaultSummary::of(records),
             region: RegionSummary::of(records),
+            confidence: ConfidenceSummary::of(records),
         }
     }
 }
@@ -512,6 +468,32 @@ impl RunSummary {
                     )),
                 }
             }
+            let confidence = m.confidence.as_ref();
+            let corrupted = faults.map_or(0, |f| f.corrupted_frames);
+            let clean = self.frames.saturating_sub(corrupted).max(1);
+            let measured = [
+                confidence.and_then(|c| c.coverage_clean),
+                confidence.and_then(|c| c.coverage_clean),
+                confidence.and_then(|c| c.coverage_corrupted),
+                confidence.map(|c| c.abstained_clean as f64 / clean as f64),
+                confidence.map(|c| c.all.aurc),
+                confidence.map(|c| c.all.aurc),
+            ];
+            for ((what, limit, lower), found) in
+                limits.confidence_limits().into_iter().zip(measured)
+            {
+                let Some(limit) = limit else { continue };
+                let holds = found.is_some_and(|v| if lower { v >= limit } else { v <= limit });
+                if !holds {
+                    missed.push(format!(
+                        "{} ({name}): {what} {} is {} the expected {} {limit}",
+                        self.scenario,
+                        found.map_or("(none measured)".into(), |v| format!("{v:.4}")),
+                        if lower { "below" } else { "above" },
+                        if lower { "minimum" } else { "maximum" },
+                    ));
+                }
+            }
         };
         let top = self.expect.evidential();
         if top.any() {
@@ -541,6 +523,7 @@ pub(super) mod tests {
             mean_group_size: None,
             faults: None,
             region: None,
+            confidence: None,
         }
     }
 

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::RunSummary;
+use super::{ConfidenceSummary, RunSummary};
 pub use crate::scenario::{Comparison, Side};
 
 /// A mean across seeds with its 95 % confidence interval (Student's t, n − 1 degrees of freedom).
@@ -107,6 +107,18 @@ pub struct AcrossSeeds {
     pub seeds: Vec<u64>,
     /// Mean error (mm) across them.
     pub mean_error: Interval,
+    /// Area under the risk–coverage curve (mm) across them.
+    #[serde(default)]
+    pub aurc: Option<Interval>,
+    /// Share of the clean frames its regions held, across them.
+    #[serde(default)]
+    pub coverage_clean: Option<Interval>,
+    /// Share of the corrupted frames its regions held (abstentions cover the workspace).
+    #[serde(default)]
+    pub coverage_corrupted: Option<Interval>,
+    /// Share of the clean frames it abstained on.
+    #[serde(default)]
+    pub abstained_clean: Option<Interval>,
 }
 
 /// A comparison measured: the paired difference of mean errors (mm) and what it shows.
@@ -161,10 +173,25 @@ impl SeedReport {
                     .collect();
                 pairs.sort_by_key(|p| p.0);
                 let errors: Vec<f64> = pairs.iter().map(|p| p.1).collect();
+                let across = |figure: &dyn Fn(&ConfidenceSummary, &RunSummary) -> Option<f64>| {
+                    let values: Vec<f64> = (runs.iter())
+                        .filter(|r| r.scenario == side.scenario)
+                        .filter_map(|r| figure(r.method(&side.method)?.confidence.as_ref()?, r))
+                        .collect();
+                    Interval::of(&values)
+                };
                 Some(AcrossSeeds {
                     side: side.clone(),
                     seeds: pairs.iter().map(|p| p.0).collect(),
                     mean_error: Interval::of(&errors)?,
+                    aurc: across(&|c, _| Some(c.all.aurc)),
+                    coverage_clean: across(&|c, _| c.coverage_clean),
+                    coverage_corrupted: across(&|c, _| c.coverage_corrupted),
+                    abstained_clean: across(&|c, r| {
+                        let corrupted = r.method(&side.method)?.faults.as_ref();
+                        let clean = r.frames - corrupted.map_or(0, |f| f.corrupted_frames);
+                        Some(c.abstained_clean as f64 / clean.max(1) as f64)
+                    }),
                 })
             })
             .collect();

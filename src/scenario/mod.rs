@@ -13,8 +13,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::adaptive::AdaptiveSettings;
 use crate::estimator::{
-    ContinuousSettings, EstimatorSettings, EvidentialSettings, GpSettings, KnnSettings, Method,
-    ParticleSettings, SettingsContext, TemporalSettings,
+    ConfidenceSettings, ContinuousSettings, EstimatorSettings, EvidentialSettings, GpSettings,
+    KnnSettings, Method, ParticleSettings, SettingsContext, TemporalSettings,
 };
 use crate::faults::{FaultPlan, FaultSpec};
 use crate::features::{FeatureConfig, FeatureSet};
@@ -112,6 +112,7 @@ impl Expectations {
             max_missing_share: self.max_missing_share,
             max_corrupted_mean_error: self.max_corrupted_mean_error,
             min_detection_auc: self.min_detection_auc,
+            ..MethodExpectations::default()
         }
     }
 }
@@ -128,6 +129,19 @@ pub struct MethodExpectations {
     pub max_corrupted_mean_error: Option<f64>,
     /// Smallest acceptable area under the ROC curve of the detection score (faults only).
     pub min_detection_auc: Option<f64>,
+    /// Smallest acceptable share of clean frames its calibrated regions hold.
+    pub min_coverage: Option<f64>,
+    /// Largest acceptable share of clean frames its regions hold (a region too wide says little).
+    pub max_coverage: Option<f64>,
+    /// Smallest acceptable share of corrupted frames its regions hold (abstentions cover the
+    /// workspace).
+    pub min_corrupted_coverage: Option<f64>,
+    /// Largest acceptable share of clean frames it abstains on.
+    pub max_abstained_share: Option<f64>,
+    /// Smallest and largest acceptable area under its risk–coverage curve over all frames (mm).
+    pub min_aurc: Option<f64>,
+    /// See `min_aurc`.
+    pub max_aurc: Option<f64>,
 }
 
 impl MethodExpectations {
@@ -137,6 +151,27 @@ impl MethodExpectations {
             || self.max_missing_share.is_some()
             || self.max_corrupted_mean_error.is_some()
             || self.min_detection_auc.is_some()
+            || self.confidence_limits().iter().any(|(_, v, _)| v.is_some())
+    }
+
+    /// The confidence limits: (name, limit, whether it is a lower bound).
+    pub fn confidence_limits(&self) -> [(&'static str, Option<f64>, bool); 6] {
+        [
+            ("coverage", self.min_coverage, true),
+            ("coverage", self.max_coverage, false),
+            (
+                "coverage on corrupted frames",
+                self.min_corrupted_coverage,
+                true,
+            ),
+            (
+                "share of clean frames abstained on",
+                self.max_abstained_share,
+                false,
+            ),
+            ("AURC", self.min_aurc, true),
+            ("AURC", self.max_aurc, false),
+        ]
     }
 }
 
@@ -186,6 +221,9 @@ pub struct Scenario {
     pub temporal: TemporalSettings,
     /// The particle filter's settings (`[particle_filter]`).
     pub particle_filter: ParticleSettings,
+    /// The levels every method's calibrated regions and abstentions are held to
+    /// (`[confidence]`).
+    pub confidence: ConfidenceSettings,
     /// The settings of methods registered at run time, by method name (`[methods.NAME]`).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub methods: BTreeMap<String, toml::Table>,
@@ -224,6 +262,7 @@ impl Default for Scenario {
             continuous: ContinuousSettings::default(),
             temporal: TemporalSettings::default(),
             particle_filter: ParticleSettings::default(),
+            confidence: ConfidenceSettings::default(),
             methods: BTreeMap::new(),
             expect: Expectations::default(),
             paper_error: None,
@@ -337,6 +376,7 @@ impl Scenario {
             continuous: self.continuous.clone(),
             temporal: self.temporal.clone(),
             particle_filter: self.particle_filter.clone(),
+            confidence: self.confidence.clone(),
             registered: self.methods.clone(),
         }
     }
@@ -373,6 +413,9 @@ impl Scenario {
             .features
             .check()
             .map_err(|e| invalid(format!("[features]: {e}")))?;
+        self.confidence
+            .check()
+            .map_err(|e| invalid(format!("[confidence]: {e}")))?;
         self.check_estimators(&SettingsContext {
             feature_names: features.names(),
             has_validation: self.validation.is_some(),

@@ -171,8 +171,10 @@ pub(super) struct Weighed {
     pub(super) uncertainty: Uncertainty,
 }
 
-/// Weighted RMS distance from `centre` and the smallest radius holding `share` of the weight.
+/// Weighted RMS distance from `centre`, the smallest radius holding `share` of the weight and
+/// the weighted second moments about `centre`.
 fn uncertainty(weights: &[f64], poses: &[[f64; 2]], centre: [f64; 2], share: f64) -> Uncertainty {
+    let mut moments = [[0.0; 2]; 2];
     // Squared distances: the quantile is the same, and no square root per pose.
     let mut items: Vec<(f64, f64)> = weights
         .iter()
@@ -180,6 +182,9 @@ fn uncertainty(weights: &[f64], poses: &[[f64; 2]], centre: [f64; 2], share: f64
         .filter(|(w, _)| **w > 0.0)
         .map(|(&w, p)| {
             let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
+            moments[0][0] += w * dx * dx;
+            moments[0][1] += w * dx * dy;
+            moments[1][1] += w * dy * dy;
             (dx * dx + dy * dy, w)
         })
         .collect();
@@ -188,11 +193,21 @@ fn uncertainty(weights: &[f64], poses: &[[f64; 2]], centre: [f64; 2], share: f64
         return Uncertainty {
             spread: 0.0,
             radius: 0.0,
+            covariance: [[0.0; 2]; 2],
         };
     }
     let spread = (items.iter().map(|(d2, w)| d2 * w).sum::<f64>() / total).sqrt();
     let radius = weighted_quantile(&mut items, share * total).sqrt();
-    Uncertainty { spread, radius }
+    let (xx, xy, yy) = (
+        moments[0][0] / total,
+        moments[0][1] / total,
+        moments[1][1] / total,
+    );
+    Uncertainty {
+        spread,
+        radius,
+        covariance: [[xx, xy], [xy, yy]],
+    }
 }
 
 /// Σ w q / Σ w (poses are validated finite, weights are finite and non-negative by construction).

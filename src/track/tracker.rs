@@ -92,6 +92,8 @@ pub struct Uncertainty {
     pub spread: f64,
     /// Smallest radius around the estimate holding `uncertainty_mass` of the weight (mm).
     pub radius: f64,
+    /// Second moments of the sample poses about the estimate, weighted (mm²).
+    pub covariance: [[f64; 2]; 2],
 }
 
 /// One alternative estimate of the splitting policy.

@@ -466,6 +466,7 @@ impl PoseEstimator for Continuous {
             conflict_level: None,
             detection_score: None,
             region: None,
+            covariance: None,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()
@@ -496,6 +497,7 @@ impl PoseEstimator for Continuous {
             })
             .flatten();
         estimate.pose = Some(fit.pose);
+        estimate.covariance = super::laplace_covariance(fit.curvature);
         estimate.uncertainty_radius = region.as_ref().map(|r| r.semi_major);
         estimate.region = region;
         estimate.group = Some(members(group).collect());

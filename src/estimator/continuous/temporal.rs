@@ -234,6 +234,10 @@ impl MotionTracker for ContinuousMotion<'_> {
             conflict_level: None,
             detection_score: None,
             region: None,
+            covariance: Some({
+                let r = past.reach + last.scale;
+                [[r * r, 0.0], [0.0, r * r]]
+            }),
             flags: crate::estimator::EstimateFlags {
                 missing,
                 excluded,
@@ -304,6 +308,7 @@ impl MotionTracker for ContinuousMotion<'_> {
             conflict_level: Some(level),
             detection_score: Some(0.5 * frame.fit(usable).chi2),
             region,
+            covariance: crate::estimator::laplace_covariance(fit.curvature),
             flags: crate::estimator::EstimateFlags {
                 missing,
                 excluded: members(usable & !features_only).collect(),

@@ -1,0 +1,439 @@
+//! Confidence every method can be held to: regions calibrated on the validation motion by a
+//! split-conformal quantile, and abstention where the method's own evidence says it cannot tell.
+//!
+//! Each method states a covariance Σ of its pose per frame ([`PoseEstimate::covariance`]: the
+//! plausibility's spread, the Laplace covariance, the GP's predictive variance, the neighbours' or
+//! particles' spread). Its nonconformity score on a frame is the Mahalanobis distance
+//! r = √(dᵀ (Σ + f·I)⁻¹ d) of the truth from the estimate, f a small floor so that a
+//! point-mass belief still has a region. On the n validation frames the ⌈(n+1)·c⌉-th smallest r is
+//! the radius q, and a test frame's region is {p : r(p) ≤ q}. If validation and test frames are
+//! exchangeable, the region holds the truth with probability at least c (Vovk et al.,
+//! split conformal prediction). That is the assumption: a clean test motion like the validation
+//! motion; a fault breaks it, which is why abstention exists.
+//!
+//! A method abstains (the pose stays, flagged `abstained`, with a region over the whole workspace)
+//! when its detection score lies above the ⌈(n+1)(1 − a)⌉-th smallest validation score (so about a
+//! share a of clean frames abstain), when the score is not finite (total conflict), when it fell
+//! back to one feature or its combination failed, or when its region would exceed
+//! `max_region_share` of the workspace.
+
+use serde::{Deserialize, Serialize};
+
+use super::{MotionTracker, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet};
+use crate::planar::{bounding_box, distance, Rect};
+use crate::range::within;
+
+/// The `[confidence]` section: the levels every method's regions and abstentions are held to.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ConfidenceSettings {
+    /// Share of clean frames the regions should hold (split-conformal, on the validation motion).
+    pub coverage: f64,
+    /// Share of clean validation frames whose detection score may make the method abstain.
+    pub abstain_share: f64,
+    /// A region larger than this share of the workspace's area makes the method abstain.
+    pub max_region_share: f64,
+}
+
+impl Default for ConfidenceSettings {
+    fn default() -> Self {
+        Self {
+            coverage: 0.9,
+            abstain_share: 0.01,
+            max_region_share: 0.5,
+        }
+    }
+}
+
+impl ConfidenceSettings {
+    /// Checks the ranges: a sentence naming the field otherwise.
+    ///
+    /// # Errors
+    /// The field and its range.
+    pub fn check(&self) -> Result<(), String> {
+        within(self.coverage, 0.5..=0.999).map_err(|e| format!("`confidence.coverage`: {e}"))?;
+        within(self.abstain_share, 0.0..=0.5)
+            .map_err(|e| format!("`confidence.abstain_share`: {e}"))?;
+        within(self.max_region_share, 0.01..=1.0)
+            .map_err(|e| format!("`confidence.max_region_share`: {e}"))?;
+        Ok(())
+    }
+}
+
+/// What a method learned of its own reliability on the validation motion (stored in its model
+/// file as `calibration`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Calibration {
+    /// The nominal coverage of the regions.
+    pub coverage: f64,
+    /// The split-conformal quantile of the Mahalanobis scores (`None`: too few validation frames
+    /// for the coverage, so every region is the whole workspace).
+    pub radius: Option<f64>,
+    /// Added to Σ's diagonal (mm²): a hundredth of the median squared validation error.
+    pub floor: f64,
+    /// Detection scores above this make the method abstain (`None`: it has no score, or too few
+    /// validation frames to set one).
+    pub detection_limit: Option<f64>,
+    /// Regions larger than this (mm²) make the method abstain.
+    pub max_region_area: f64,
+    /// The workspace an abstaining region covers.
+    pub workspace: Rect,
+    /// Validation frames it was learned on.
+    pub validation_frames: usize,
+    /// Share of those frames on which it abstained.
+    pub validation_abstained: f64,
+}
+
+/// The ⌈(n+1)·share⌉-th smallest of `values` (non-finite ones rank last); `None` past the end.
+fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
+    let mut sorted: Vec<f64> = values
+        .iter()
+        .map(|&v| if v.is_nan() { f64::INFINITY } else { v })
+        .collect();
+    sorted.sort_by(f64::total_cmp);
+    // Less a hair, so that 10 × 0.9 (9.000000000000002 in floating point) is rank 9.
+    let rank = ((sorted.len() + 1) as f64 * share - 1e-9).ceil() as usize;
+    (rank >= 1)
+        .then(|| sorted.get(rank - 1).copied())
+        .flatten()
+        .filter(|v| v.is_finite())
+}
+
+/// (Σ + f·I) with its inverse and determinant; `None` unless positive definite.
+fn regularised(covariance: Option<[[f64; 2]; 2]>, floor: f64) -> Option<([[f64; 2]; 2], f64)> {
+    let [[a, b], [c, d]] = covariance.unwrap_or([[0.0; 2]; 2]);
+    let b = 0.5 * (b + c);
+    let (a, d) = (a + floor, d + floor);
+    let det = a * d - b * b;
+    (det.is_finite() && det > 0.0 && a > 0.0)
+        .then(|| ([[d / det, -b / det], [-b / det, a / det]], det))
+}
+
+fn mahalanobis(inverse: &[[f64; 2]; 2], e: [f64; 2], t: [f64; 2]) -> f64 {
+    let v = [t[0] - e[0], t[1] - e[1]];
+    let s = inverse;
+    (v[0] * (s[0][0] * v[0] + s[0][1] * v[1]) + v[1] * (s[1][0] * v[0] + s[1][1] * v[1]))
+        .max(0.0)
+        .sqrt()
+}
+
+impl Calibration {
+    /// Learns the calibration of `estimator` on `data`'s validation motion (tracked in order,
+    /// with its times); `None` without a validation motion.
+    ///
+    /// # Errors
+    /// The estimator's own errors on a validation frame.
+    pub fn learn(
+        estimator: &dyn PoseEstimator,
+        data: &TrainingSet,
+        settings: &ConfidenceSettings,
+    ) -> Result<Option<Self>, super::EstimatorError> {
+        let Some(validation) = &data.validation else {
+            return Ok(None);
+        };
+        let mut motion = estimator.start_motion();
+        let mut estimates = Vec::with_capacity(validation.rows.len());
+        for (i, row) in validation.rows.iter().enumerate() {
+            let time = data.validation_times.and_then(|t| t.get(i).copied());
+            estimates.push(motion.next(time.unwrap_or(i as f64), row)?);
+        }
+        let workspace = data.provenance.workspace.unwrap_or_else(|| {
+            // Without a declared workspace, the sample poses' box (at least a millimetre wide).
+            let (lo, hi) = bounding_box(data.sample.poses);
+            let pad = |a: f64, b: f64| 0.5 * (1.0 - (b - a)).max(0.0);
+            Rect {
+                x_min: lo[0] - pad(lo[0], hi[0]),
+                x_max: hi[0] + pad(lo[0], hi[0]),
+                y_min: lo[1] - pad(lo[1], hi[1]),
+                y_max: hi[1] + pad(lo[1], hi[1]),
+            }
+        });
+        Ok(Some(Self::from_validation(
+            &estimates,
+            validation.poses,
+            workspace,
+            settings,
+        )))
+    }
+
+    /// The calibration of these validation `estimates` against their `truth`.
+    pub fn from_validation(
+        estimates: &[PoseEstimate],
+        truth: &[[f64; 2]],
+        workspace: Rect,
+        settings: &ConfidenceSettings,
+    ) -> Self {
+        let mut errors: Vec<f64> = (estimates.iter().zip(truth))
+            .filter_map(|(e, t)| e.pose.map(|p| distance(p, *t)))
+            .filter(|e| e.is_finite())
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        let median = errors.get(errors.len() / 2).copied().unwrap_or(0.0);
+        let diagonal = workspace.diagonal();
+        // A floor below a micrometre means nothing here, and keeps Σ invertible.
+        let floor = (0.01 * median * median)
+            .max(1e-6 * diagonal * diagonal)
+            .max(1e-12);
+        let scores: Vec<f64> = (estimates.iter().zip(truth))
+            .map(|(e, t)| match (e.pose, regularised(e.covariance, floor)) {
+                (Some(p), Some((inverse, _))) => mahalanobis(&inverse, p, *t),
+                _ => f64::INFINITY,
+            })
+            .collect();
+        let detections: Vec<f64> = estimates.iter().filter_map(|e| e.detection_score).collect();
+        let detection_limit = (!detections.is_empty())
+            .then(|| conformal_quantile(&detections, 1.0 - settings.abstain_share))
+            .flatten();
+        let mut calibration = Self {
+            coverage: settings.coverage,
+            radius: conformal_quantile(&scores, settings.coverage),
+            floor,
+            detection_limit,
+            max_region_area: settings.max_region_share * workspace.area(),
+            workspace,
+            validation_frames: estimates.len(),
+            validation_abstained: 0.0,
+        };
+        let abstained = estimates
+            .iter()
+            .filter(|e| {
+                let mut e = (*e).clone();
+                calibration.apply(&mut e);
+                e.flags.abstained
+            })
+            .count();
+        calibration.validation_abstained = abstained as f64 / estimates.len().max(1) as f64;
+        calibration
+    }
+
+    /// The region over the whole workspace: the disc through its corners.
+    fn workspace_region(&self) -> PlausibilityRegion {
+        let w = &self.workspace;
+        let centre = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+        let radius = 0.5 * w.diagonal();
+        let inverse = 1.0 / (radius * radius);
+        PlausibilityRegion {
+            centre,
+            shape: [[inverse, 0.0], [0.0, inverse]],
+            level: 1.0,
+            area: std::f64::consts::PI * radius * radius,
+            semi_major: radius,
+        }
+    }
+
+    /// Why the method should abstain on `estimate` before its region is drawn, if it should.
+    fn evidence_fails(&self, estimate: &PoseEstimate) -> bool {
+        let flags = &estimate.flags;
+        let beyond = match (estimate.detection_score, self.detection_limit) {
+            (Some(s), _) if !s.is_finite() => true,
+            (Some(s), Some(limit)) => s > limit,
+            _ => false,
+        };
+        beyond || flags.fallback || flags.combination_failed
+    }
+
+    /// Gives `estimate` its calibrated region, or flags it `abstained` with a region over the
+    /// whole workspace. Frames without a pose are left alone.
+    pub fn apply(&self, estimate: &mut PoseEstimate) {
+        let Some(pose) = estimate.pose else { return };
+        // A method that states no covariance (the centre) gives no region, but may abstain.
+        let Some(covariance) = estimate.covariance else {
+            if self.evidence_fails(estimate) {
+                estimate.region = Some(self.workspace_region());
+                estimate.flags.abstained = true;
+            }
+            return;
+        };
+        let region = self.radius.and_then(|q| {
+            let (inverse, det) = regularised(Some(covariance), self.floor)?;
+            let scale = 1.0 / (q * q);
+            let shape = inverse.map(|row| row.map(|v| v * scale));
+            let [[a, b], [_, d]] = inverse;
+            // The smallest eigenvalue of Σ⁻¹ gives the longest semi-axis.
+            let smallest = 0.5 * (a + d - ((a - d) * (a - d) + 4.0 * b * b).sqrt());
+            Some(PlausibilityRegion {
+                centre: pose,
+                shape,
+                level: self.coverage,
+                area: std::f64::consts::PI * q * q * det.sqrt(),
+                semi_major: q / smallest.max(f64::MIN_POSITIVE).sqrt(),
+            })
+        });
+        match region {
+            Some(r) if r.area <= self.max_region_area && !self.evidence_fails(estimate) => {
+                estimate.region = Some(r);
+            }
+            _ => {
+                estimate.region = Some(self.workspace_region());
+                estimate.flags.abstained = true;
+            }
+        }
+    }
+}
+
+/// A fitted method with its calibration: estimates as the method, then the region and
+/// abstention of [`Calibration::apply`]. Its model file is the method's with a `calibration`
+/// field added.
+#[derive(Debug)]
+pub struct Calibrated {
+    inner: Box<dyn PoseEstimator>,
+    calibration: Calibration,
+}
+
+impl Calibrated {
+    /// `inner` with `calibration`.
+    pub fn new(inner: Box<dyn PoseEstimator>, calibration: Calibration) -> Self {
+        Self { inner, calibration }
+    }
+
+    /// The method it calibrates.
+    pub fn inner(&self) -> &dyn PoseEstimator {
+        self.inner.as_ref()
+    }
+
+    /// Its calibration.
+    pub fn calibration(&self) -> &Calibration {
+        &self.calibration
+    }
+}
+
+struct CalibratedMotion<'a> {
+    inner: Box<dyn MotionTracker + 'a>,
+    calibration: &'a Calibration,
+}
+
+impl MotionTracker for CalibratedMotion<'_> {
+    fn next(
+        &mut self,
+        time: f64,
+        features: &[Option<f64>],
+    ) -> Result<PoseEstimate, super::EstimatorError> {
+        let mut estimate = self.inner.next(time, features)?;
+        self.calibration.apply(&mut estimate);
+        Ok(estimate)
+    }
+}
+
+impl PoseEstimator for Calibrated {
+    fn method(&self) -> &'static str {
+        self.inner.method()
+    }
+
+    fn feature_names(&self) -> &[String] {
+        self.inner.feature_names()
+    }
+
+    fn feature_config(&self) -> Option<&crate::features::FeatureConfig> {
+        self.inner.feature_config()
+    }
+
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, super::EstimatorError> {
+        let mut estimate = self.inner.estimate(features)?;
+        self.calibration.apply(&mut estimate);
+        Ok(estimate)
+    }
+
+    fn to_json(&self) -> Result<String, super::EstimatorError> {
+        let text = self.inner.to_json()?;
+        with_calibration(&text, &self.calibration)
+    }
+
+    fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
+        Box::new(CalibratedMotion {
+            inner: self.inner.start_motion(),
+            calibration: &self.calibration,
+        })
+    }
+
+    fn with_provenance(
+        &self,
+        provenance: &crate::model_file::Provenance,
+    ) -> Option<Box<dyn PoseEstimator>> {
+        let inner = self.inner.with_provenance(provenance)?;
+        Some(Box::new(Self::new(inner, self.calibration.clone())))
+    }
+}
+
+/// The method's model file `text` (a JSON object) with `calibration` as its last field, the rest
+/// byte for byte.
+fn with_calibration(
+    text: &str,
+    calibration: &Calibration,
+) -> Result<String, super::EstimatorError> {
+    let body = text.trim_end();
+    let Some(open) = body.strip_suffix('}') else {
+        return Err(super::EstimatorError::Training(
+            "the method's model file is not a JSON object".into(),
+        ));
+    };
+    let calibration = crate::model_file::to_text(calibration)?.replace('\n', "\n  ");
+    let open = open.trim_end();
+    let separator = if open.ends_with('{') { "" } else { "," };
+    Ok(format!(
+        "{open}{separator}\n  \"calibration\": {calibration}\n}}"
+    ))
+}
+
+/// Splits a model file's text into the method's own text and its calibration, if it has one.
+///
+/// # Errors
+/// A sentence when the calibration is not valid.
+pub(super) fn split_calibration(text: &str) -> Result<(String, Option<Calibration>), String> {
+    let Ok(serde_json::Value::Object(mut map)) = serde_json::from_str::<serde_json::Value>(text)
+    else {
+        return Ok((text.to_string(), None));
+    };
+    let Some(value) = map.remove("calibration") else {
+        return Ok((text.to_string(), None));
+    };
+    let calibration: Calibration =
+        serde_json::from_value(value).map_err(|e| format!("`calibration`: {e}"))?;
+    calibration.check()?;
+    let rest =
+        serde_json::to_string_pretty(&serde_json::Value::Object(map)).map_err(|e| e.to_string())?;
+    Ok((rest, Some(calibration)))
+}
+
+impl Calibration {
+    /// Checks a calibration read from a file: finite, positive where it must be.
+    ///
+    /// # Errors
+    /// A sentence naming the field.
+    pub fn check(&self) -> Result<(), String> {
+        let positive = |name: &str, v: f64| {
+            (v.is_finite() && v > 0.0)
+                .then_some(())
+                .ok_or_else(|| format!("`calibration.{name}` is {v}: it must be a positive number"))
+        };
+        within(self.coverage, 0.5..=0.999).map_err(|e| format!("`calibration.coverage`: {e}"))?;
+        if let Some(q) = self.radius {
+            positive("radius", q)?;
+        }
+        positive("floor", self.floor)?;
+        positive("max_region_area", self.max_region_area)?;
+        if let Some(limit) = self.detection_limit {
+            (!limit.is_nan())
+                .then_some(())
+                .ok_or("`calibration.detection_limit` is not a number")?;
+        }
+        let w = &self.workspace;
+        let edges = [w.x_min, w.x_max, w.y_min, w.y_max];
+        if !(edges.iter().all(|v| v.is_finite()) && w.x_min < w.x_max && w.y_min < w.y_max) {
+            return Err("`calibration.workspace` is not a finite rectangle".into());
+        }
+        Ok(())
+    }
+}
+
+/// The calibrated method seen through its wrapper: `estimator` itself otherwise.
+pub fn underlying(estimator: &dyn PoseEstimator) -> &dyn PoseEstimator {
+    match (estimator as &dyn std::any::Any).downcast_ref::<Calibrated>() {
+        Some(calibrated) => calibrated.inner(),
+        None => estimator,
+    }
+}
+
+#[cfg(test)]
+#[path = "calibration_tests.rs"]
+mod tests;

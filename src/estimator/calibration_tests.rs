@@ -1,0 +1,165 @@
+use super::*;
+use crate::estimator::EstimateFlags;
+
+fn workspace() -> Rect {
+    Rect {
+        x_min: 0.0,
+        x_max: 10.0,
+        y_min: 0.0,
+        y_max: 10.0,
+    }
+}
+
+fn estimate(pose: [f64; 2], sigma: f64, score: Option<f64>) -> PoseEstimate {
+    PoseEstimate {
+        pose: Some(pose),
+        uncertainty_radius: None,
+        group: None,
+        conflict_level: None,
+        detection_score: score,
+        region: None,
+        covariance: Some([[sigma * sigma, 0.0], [0.0, sigma * sigma]]),
+        flags: EstimateFlags::default(),
+    }
+}
+
+/// Estimates off the truth by a Gaussian error of the stated σ, drawn from a fixed stream.
+fn draws(n: usize, seed: u64) -> (Vec<PoseEstimate>, Vec<[f64; 2]>) {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let unit = Normal::new(0.0, 1.0).unwrap();
+    let mut estimates = Vec::new();
+    let mut truth = Vec::new();
+    for i in 0..n {
+        // σ varies by frame: a method that knows its σ gets tight regions where it is sure.
+        let sigma = 0.05 + 0.2 * (i % 5) as f64;
+        let t = [5.0, 5.0];
+        let e = [
+            t[0] + sigma * unit.sample(&mut rng),
+            t[1] + sigma * unit.sample(&mut rng),
+        ];
+        estimates.push(estimate(e, sigma, Some(unit.sample(&mut rng).abs())));
+        truth.push(t);
+    }
+    (estimates, truth)
+}
+
+#[test]
+fn the_conformal_quantile_is_the_rank_of_n_plus_one() {
+    let values: Vec<f64> = (1..=9).map(f64::from).collect();
+    assert_eq!(conformal_quantile(&values, 0.9), Some(9.0));
+    assert_eq!(conformal_quantile(&values, 0.5), Some(5.0));
+    assert_eq!(conformal_quantile(&values, 0.95), None, "rank 10 of 9");
+    assert_eq!(conformal_quantile(&[f64::NAN, 1.0], 0.3), Some(1.0));
+    assert_eq!(conformal_quantile(&[f64::NAN, 1.0], 0.6), None);
+}
+
+#[test]
+fn calibrated_regions_hold_the_nominal_share_of_exchangeable_frames() {
+    let settings = ConfidenceSettings::default();
+    let (validation, truth) = draws(400, 1);
+    let calibration = Calibration::from_validation(&validation, &truth, workspace(), &settings);
+    let (test, test_truth) = draws(4000, 2);
+    let mut covered = 0;
+    let mut areas = [0.0; 5];
+    for (i, (mut e, t)) in test.into_iter().zip(test_truth).enumerate() {
+        e.detection_score = None;
+        calibration.apply(&mut e);
+        assert!(!e.flags.abstained);
+        let region = e.region.unwrap();
+        covered += usize::from(region.covers(t));
+        areas[i % 5] = region.area;
+    }
+    let share = covered as f64 / 4000.0;
+    assert!((0.88..=0.92).contains(&share), "coverage {share}");
+    // The region follows the stated σ: the surest frames get the smallest regions.
+    assert!(areas.windows(2).all(|w| w[0] < w[1]), "{areas:?}");
+    // χ² with 2 degrees of freedom at 0.9: r = √(2 ln 10) ≈ 2.146.
+    let q = calibration.radius.unwrap();
+    assert!((q - 2.146).abs() < 0.15, "radius {q}");
+}
+
+#[test]
+fn scores_beyond_clean_validation_frames_and_total_conflict_abstain() {
+    let settings = ConfidenceSettings::default();
+    let (validation, truth) = draws(200, 3);
+    let calibration = Calibration::from_validation(&validation, &truth, workspace(), &settings);
+    let limit = calibration.detection_limit.unwrap();
+    assert!(calibration.validation_abstained <= 0.01);
+    for (score, abstains) in [
+        (limit, false),
+        (limit * 1.5 + 1.0, true),
+        (f64::INFINITY, true),
+        (f64::NAN, true),
+    ] {
+        let mut e = estimate([5.0, 5.0], 0.1, Some(score));
+        calibration.apply(&mut e);
+        assert_eq!(e.flags.abstained, abstains, "score {score}");
+        let region = e.region.unwrap();
+        assert_eq!(
+            region.covers([0.0, 10.0]),
+            abstains,
+            "the workspace's corner"
+        );
+        assert!(e.flag_words(&[]).contains("abstained") == abstains);
+    }
+    // A fallback, or a region beyond half the workspace, abstains too.
+    let mut fallback = estimate([5.0, 5.0], 0.1, Some(0.0));
+    fallback.flags.fallback = true;
+    calibration.apply(&mut fallback);
+    assert!(fallback.flags.abstained);
+    let mut vague = estimate([5.0, 5.0], 20.0, Some(0.0));
+    calibration.apply(&mut vague);
+    assert!(vague.flags.abstained);
+    // Without a pose there is nothing to abstain from.
+    let mut none = estimate([5.0, 5.0], 0.1, Some(f64::INFINITY));
+    none.pose = None;
+    calibration.apply(&mut none);
+    assert!(!none.flags.abstained && none.region.is_none());
+}
+
+#[test]
+fn too_few_validation_frames_give_whole_workspace_regions() {
+    let (validation, truth) = draws(5, 4);
+    let calibration = Calibration::from_validation(
+        &validation,
+        &truth,
+        workspace(),
+        &ConfidenceSettings::default(),
+    );
+    assert_eq!(calibration.radius, None, "rank 6 of 5");
+    let mut e = estimate([5.0, 5.0], 0.1, None);
+    calibration.apply(&mut e);
+    assert!(e.flags.abstained);
+}
+
+#[test]
+fn the_calibration_rides_in_the_model_file_and_is_checked() {
+    let (validation, truth) = draws(50, 5);
+    let calibration = Calibration::from_validation(
+        &validation,
+        &truth,
+        workspace(),
+        &ConfidenceSettings::default(),
+    );
+    let inner = "{\n  \"format_version\": 1,\n  \"method\": \"x\"\n}";
+    let text = with_calibration(inner, &calibration).unwrap();
+    let (rest, found) = split_calibration(&text).unwrap();
+    assert_eq!(found.as_ref(), Some(&calibration));
+    let rest: serde_json::Value = serde_json::from_str(&rest).unwrap();
+    assert_eq!(
+        rest,
+        serde_json::from_str::<serde_json::Value>(inner).unwrap()
+    );
+    let (same, none) = split_calibration(inner).unwrap();
+    assert_eq!((same.as_str(), none), (inner, None));
+    let broken = text.replace(
+        &format!("\"floor\": {}", calibration.floor),
+        "\"floor\": -1.0",
+    );
+    assert_ne!(broken, text);
+    assert!(split_calibration(&broken)
+        .unwrap_err()
+        .contains("calibration.floor"));
+}
