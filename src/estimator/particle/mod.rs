@@ -1,32 +1,37 @@
 //! The filter baseline (issue 17): a bootstrap particle filter over the pose, with the
 //! continuous tracker's Gaussian-process feature maps as its likelihood and the temporal
-//! evidential tracker's motion model.
+//! trackers' velocity line as its motion model.
 //!
 //! - Likelihood of feature i at pose q: (1 − ε)·N(fᵢ; μᵢ(q), σᵢ²) + ε/Wᵢ, with μᵢ the learned
 //!   map, σᵢ its validation residual and Wᵢ the width of its range over the samples: the small
 //!   uniform share ε (`outlier_share`) is what a practitioner adds so that one wild feature
 //!   cannot wipe out every particle.
 //! - Motion: a share `velocity_share` of the particles moves by the velocity of the line
-//!   through the last estimates (`temporal.velocity_frames`), then every particle moves to a
-//!   uniform point of the disc of radius `max_speed` × Δt, kept inside the sample poses'
-//!   bounding box.
+//!   through the last estimates (`temporal.velocity_frames`) and a Gaussian step of σ·Δt per
+//!   axis (`motion_noise` σ in mm/s); the others move to a uniform point of the disc of radius
+//!   `temporal.max_speed` × Δt (the reach), so a pose that leaves the line is found again.
+//!   Until there is a line, σ is at least half the reach. Particles stay inside the sample
+//!   poses' bounding box.
+//! - σ and ε are learned on the validation motion as the temporal trackers learn α
+//!   ([`learn`]), unless given.
 //! - Systematic resampling when the effective sample size falls below half the particles.
 //! - Estimate: the weighted mean; uncertainty: the radius holding 90 % of the weight; a frame
 //!   without a usable feature is the prediction (`predicted`).
 //! - Seeded: every motion starts from the model's seed, so a scenario and its seed give the
 //!   same estimates.
 
+mod learn;
+mod motion;
+
+use learn::{DEFAULT_MOTION_NOISE, DEFAULT_OUTLIER_SHARE};
+
 use std::path::Path;
 
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::inputs::frame_values;
-use super::motion::VelocityLine;
 use super::{
-    Continuous, ContinuousSettings, EstimateFlags, EstimatorError, MotionTracker, PoseEstimate,
-    PoseEstimator, TemporalSettings, TrainingSet,
+    Continuous, ContinuousSettings, EstimatorError, MotionTracker, PoseEstimate, PoseEstimator,
+    TemporalSettings, TrainingSet,
 };
 use crate::features::FeatureConfig;
 use crate::model_file::{self, corrupted, Stamp};
@@ -36,16 +41,27 @@ use crate::range::within;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ParticleSettings {
-    /// Number of particles.
+    /// Number of particles. 2,000 by default: on `scenarios/time.toml` and a held-out motion
+    /// more gave no lower error, fewer lost the pose on some seeds (README, "Tracking over
+    /// time").
     pub particles: usize,
-    /// Share ε of each feature's likelihood that is uniform over its range.
-    pub outlier_share: f64,
+    /// σ (mm/s) of each particle's Gaussian step per axis (the step is σ·Δt); `None` learns it
+    /// on the validation motion ([`learn::MOTION_NOISE_CANDIDATES`]), or takes
+    /// [`DEFAULT_MOTION_NOISE`] without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub motion_noise: Option<f64>,
+    /// Share ε of each feature's likelihood that is uniform over its range; `None` learns it
+    /// on the validation motion ([`learn::OUTLIER_SHARE_CANDIDATES`]), or takes
+    /// [`DEFAULT_OUTLIER_SHARE`] without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub outlier_share: Option<f64>,
     /// Mixed with the training seed.
     pub seed: u64,
-    /// Share of the particles moved by the velocity line at each frame; the others keep their
-    /// position (before the reach). Half by default: the filter has no conflict check to keep
-    /// occluded frames out of the line, and followed by every particle a wrong line loses the
-    /// pose (README, "Tracking over time").
+    /// Share of the particles moved along the velocity line with the Gaussian step at each
+    /// frame; the others move to a uniform point within the reach `temporal.max_speed` × Δt.
+    /// Half by default: σ is learned on a clean validation motion, and the filter has no
+    /// conflict check to keep occluded frames out of the line, so the reach's share is what
+    /// finds a pose that left the line (README, "Tracking over time").
     pub velocity_share: f64,
 }
 
@@ -53,7 +69,8 @@ impl Default for ParticleSettings {
     fn default() -> Self {
         Self {
             particles: 2000,
-            outlier_share: 0.05,
+            motion_noise: None,
+            outlier_share: None,
             seed: 0,
             velocity_share: 0.5,
         }
@@ -68,9 +85,16 @@ impl ParticleSettings {
     pub fn check(&self) -> Result<(), EstimatorError> {
         within(self.particles, 1..=1_000_000)
             .map_err(|e| EstimatorError::Training(format!("`particle_filter.particles`: {e}")))?;
-        within(self.outlier_share, 0.0..=1.0).map_err(|e| {
-            EstimatorError::Training(format!("`particle_filter.outlier_share`: {e}"))
-        })?;
+        if let Some(sigma) = self.motion_noise {
+            check_motion_noise(sigma).map_err(|e| {
+                EstimatorError::Training(format!("`particle_filter.motion_noise`: {e}"))
+            })?;
+        }
+        if let Some(eps) = self.outlier_share {
+            within(eps, 0.0..=1.0).map_err(|e| {
+                EstimatorError::Training(format!("`particle_filter.outlier_share`: {e}"))
+            })?;
+        }
         within(self.velocity_share, 0.0..=1.0).map_err(|e| {
             EstimatorError::Training(format!("`particle_filter.velocity_share`: {e}"))
         })?;
@@ -78,8 +102,13 @@ impl ParticleSettings {
     }
 }
 
+/// σ must be a finite speed ≥ 0 below 10 m/s (far beyond any workspace crossing per frame).
+fn check_motion_noise(sigma: f64) -> Result<(), String> {
+    within(sigma, 0.0..=10_000.0).map_err(|e| format!("{e} (mm/s)"))
+}
+
 /// The particle filter, fitted: the feature maps and noise scales of a fitted continuous
-/// tracker, with the filter's settings.
+/// tracker, with the filter's settings and its learned σ and ε.
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {
     maps: Continuous,
@@ -91,8 +120,16 @@ pub struct ParticleFilter {
 struct ParticleFile {
     #[serde(flatten)]
     stamp: Stamp,
+    /// The settings as given (`None` where learned).
     settings: ParticleSettings,
-    /// The motion model's reach per second (mm/s), `temporal.max_speed`.
+    /// σ of the Gaussian step (mm/s) in use, and whether it was learned.
+    motion_noise: f64,
+    motion_noise_learned: bool,
+    /// ε in use, and whether it was learned.
+    outlier_share: f64,
+    outlier_share_learned: bool,
+    /// The motion model's reach per second (mm/s), `temporal.max_speed`: the step's spread
+    /// while there is no line yet.
     max_speed: f64,
     /// The estimates the velocity line is fitted through, `temporal.velocity_frames`.
     velocity_frames: usize,
@@ -103,12 +140,14 @@ struct ParticleFile {
 }
 
 impl ParticleFilter {
-    /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 2;
+    /// Version of the model file format this build writes and reads (3: σ and ε learned, the
+    /// reach `max_speed` no longer used).
+    pub const FORMAT_VERSION: u32 = 3;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "particle_filter";
 
-    /// Fits the feature maps (as the continuous tracker does) on `data`.
+    /// Fits the feature maps (as the continuous tracker does) on `data`, then learns σ and ε
+    /// on the validation motion where they are not given.
     ///
     /// # Errors
     /// Invalid settings; the continuous tracker's fitting errors.
@@ -118,15 +157,19 @@ impl ParticleFilter {
         continuous: &ContinuousSettings,
         data: &TrainingSet,
     ) -> Result<Self, EstimatorError> {
-        Self::from_maps(
+        settings.check()?;
+        let mut fitted = Self::from_maps(
             settings,
             motion,
             Continuous::fit(continuous, data)?,
             data.provenance.seed,
-        )
+        )?;
+        learn::learn(&mut fitted, data)?;
+        Ok(fitted)
     }
 
-    /// The filter on already fitted feature maps; `seed` is the training seed.
+    /// The filter on already fitted feature maps, σ and ε as given or their defaults (nothing
+    /// learned); `seed` is the training seed.
     ///
     /// # Errors
     /// Invalid settings.
@@ -141,12 +184,26 @@ impl ParticleFilter {
         let file = ParticleFile {
             stamp: Stamp::new(Self::METHOD, Self::FORMAT_VERSION),
             settings: settings.clone(),
+            motion_noise: settings.motion_noise.unwrap_or(DEFAULT_MOTION_NOISE),
+            motion_noise_learned: false,
+            outlier_share: settings.outlier_share.unwrap_or(DEFAULT_OUTLIER_SHARE),
+            outlier_share_learned: false,
             max_speed: motion.max_speed,
             velocity_frames: motion.velocity_frames,
             seed: crate::seed::derive(seed, &format!("particle_filter/{}", settings.seed)),
             feature_maps: maps.to_json()?,
         };
         Ok(Self { maps, file })
+    }
+
+    /// σ of the Gaussian step (mm/s), and whether it was learned.
+    pub fn motion_noise(&self) -> (f64, bool) {
+        (self.file.motion_noise, self.file.motion_noise_learned)
+    }
+
+    /// ε, the uniform share of each feature's likelihood, and whether it was learned.
+    pub fn outlier_share(&self) -> (f64, bool) {
+        (self.file.outlier_share, self.file.outlier_share_learned)
     }
 
     /// Reads a model file's text.
@@ -165,6 +222,10 @@ impl ParticleFilter {
                 .check()
             })
             .map_err(|e| corrupted(format!("settings: {e}")))?;
+        check_motion_noise(file.motion_noise)
+            .map_err(|e| corrupted(format!("motion_noise: {e}")))?;
+        within(file.outlier_share, 0.0..=1.0)
+            .map_err(|e| corrupted(format!("outlier_share: {e}")))?;
         let maps = Continuous::from_json(&file.feature_maps).map_err(|e| match e {
             e @ (EstimatorError::Model(_) | EstimatorError::File(_)) => {
                 corrupted(format!("feature_maps: {e}")).into()
@@ -187,7 +248,7 @@ impl ParticleFilter {
         self.maps.feature_map_into(q, mapped);
         let ranges = self.maps.feature_ranges();
         let scales = self.maps.residual_scales();
-        let eps = self.file.settings.outlier_share;
+        let eps = self.file.outlier_share;
         let mut total = 0.0;
         for (i, v) in values.iter().enumerate() {
             let (Some(v), sigma) = (v, scales[i]) else {
@@ -227,169 +288,7 @@ impl PoseEstimator for ParticleFilter {
     }
 
     fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
-        let (lo, hi) = self.maps.sample_bounds();
-        let mut rng = ChaCha8Rng::seed_from_u64(self.file.seed);
-        let n = self.file.settings.particles;
-        let particles = (0..n)
-            .map(|_| {
-                [
-                    lo[0] + rng.random::<f64>() * (hi[0] - lo[0]),
-                    lo[1] + rng.random::<f64>() * (hi[1] - lo[1]),
-                ]
-            })
-            .collect();
-        Box::new(FilterMotion {
-            filter: self,
-            rng,
-            particles,
-            weights: vec![1.0 / n as f64; n],
-            last: None,
-            line: VelocityLine::new(self.file.velocity_frames),
-        })
-    }
-}
-
-/// One motion under the particle filter.
-struct FilterMotion<'a> {
-    filter: &'a ParticleFilter,
-    rng: ChaCha8Rng,
-    particles: Vec<[f64; 2]>,
-    /// Normalised.
-    weights: Vec<f64>,
-    last: Option<f64>,
-    /// The line through the last measured estimates.
-    line: VelocityLine,
-}
-
-impl FilterMotion<'_> {
-    /// Moves every particle by `shift`, then to a uniform point of the disc of radius `reach`.
-    fn predict(&mut self, reach: f64, shift: [f64; 2]) {
-        if reach <= 0.0 && shift == [0.0; 2] {
-            return;
-        }
-        let (lo, hi) = self.filter.maps.sample_bounds();
-        for p in &mut self.particles {
-            // Uniform in the disc: radius ∝ √u.
-            let r = reach * self.rng.random::<f64>().sqrt();
-            let angle = std::f64::consts::TAU * self.rng.random::<f64>();
-            let moves = self.rng.random::<f64>() < self.filter.file.settings.velocity_share;
-            let s = if moves { shift } else { [0.0; 2] };
-            p[0] = (p[0] + s[0] + r * angle.cos()).clamp(lo[0], hi[0]);
-            p[1] = (p[1] + s[1] + r * angle.sin()).clamp(lo[1], hi[1]);
-        }
-    }
-
-    /// Weights by the frame's likelihood; −ln of the predictive likelihood (the detection
-    /// score), or `None` when every particle's likelihood underflows (the weights then stay).
-    fn update(&mut self, values: &[Option<f64>]) -> Option<f64> {
-        let dim = self.filter.maps.feature_names().len();
-        let mut mapped = vec![0.0; dim];
-        let logs: Vec<f64> = self
-            .particles
-            .iter()
-            .map(|&q| self.filter.log_likelihood(values, q, &mut mapped))
-            .collect();
-        let max = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        if !max.is_finite() {
-            return None;
-        }
-        let mut total = 0.0;
-        for (w, l) in self.weights.iter_mut().zip(&logs) {
-            *w *= (l - max).exp();
-            total += *w;
-        }
-        if !(total > 0.0 && total.is_finite()) {
-            return None;
-        }
-        self.weights.iter_mut().for_each(|w| *w /= total);
-        Some(-(total.ln() + max))
-    }
-
-    fn resample_if_degenerate(&mut self) {
-        let n = self.particles.len();
-        let ess = 1.0 / self.weights.iter().map(|w| w * w).sum::<f64>();
-        if ess >= 0.5 * n as f64 {
-            return;
-        }
-        let step = 1.0 / n as f64;
-        let mut u = self.rng.random::<f64>() * step;
-        let mut cumulative = self.weights[0];
-        let mut i = 0;
-        let mut resampled = Vec::with_capacity(n);
-        for _ in 0..n {
-            while u > cumulative && i + 1 < n {
-                i += 1;
-                cumulative += self.weights[i];
-            }
-            resampled.push(self.particles[i]);
-            u += step;
-        }
-        self.particles = resampled;
-        self.weights = vec![step; n];
-    }
-
-    /// Weighted mean and the radius holding 90 % of the weight.
-    fn estimate(&self) -> ([f64; 2], f64) {
-        let mut mean = [0.0; 2];
-        for (p, w) in self.particles.iter().zip(&self.weights) {
-            mean[0] += w * p[0];
-            mean[1] += w * p[1];
-        }
-        let mut by_distance: Vec<(f64, f64)> = self
-            .particles
-            .iter()
-            .zip(&self.weights)
-            .map(|(p, &w)| ((p[0] - mean[0]).hypot(p[1] - mean[1]), w))
-            .collect();
-        by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut held = 0.0;
-        let radius = by_distance
-            .iter()
-            .find(|(_, w)| {
-                held += w;
-                held >= 0.9
-            })
-            .map_or(0.0, |(d, _)| *d);
-        (mean, radius)
-    }
-}
-
-impl MotionTracker for FilterMotion<'_> {
-    fn next(
-        &mut self,
-        time: f64,
-        features: &[Option<f64>],
-    ) -> Result<PoseEstimate, EstimatorError> {
-        let names = self.filter.maps.feature_names().len();
-        let (values, missing) = frame_values(features, names)?;
-        let scales = self.filter.maps.residual_scales();
-        let values: Vec<Option<f64>> = (values.into_iter().enumerate())
-            .map(|(i, v)| v.filter(|_| scales[i] > 0.0))
-            .collect();
-        if let Some(last) = self.last {
-            let interval = (time - last).max(0.0);
-            let shift = self.line.shift(interval);
-            self.predict(self.filter.file.max_speed * interval, shift);
-        }
-        self.last = Some(time);
-        let usable = values.iter().any(Option::is_some);
-        let score = if usable { self.update(&values) } else { None };
-        let (pose, radius) = self.estimate();
-        self.line.remember(time, score.map(|_| pose), false);
-        self.resample_if_degenerate();
-        Ok(PoseEstimate {
-            pose: Some(pose),
-            uncertainty_radius: Some(radius),
-            group: None,
-            conflict_level: None,
-            detection_score: score.or(usable.then_some(f64::INFINITY)),
-            region: None,
-            flags: EstimateFlags {
-                missing,
-                predicted: score.is_none(),
-                ..EstimateFlags::default()
-            },
-        })
+        Box::new(motion::FilterMotion::new(self))
     }
 }
 
@@ -421,10 +320,17 @@ mod tests {
         })
         .contains("particle_filter.particles"));
         assert!(bad(ParticleSettings {
-            outlier_share: 1.5,
+            outlier_share: Some(1.5),
             ..default()
         })
         .contains("particle_filter.outlier_share"));
+        for sigma in [-1.0, f64::NAN, f64::INFINITY] {
+            assert!(bad(ParticleSettings {
+                motion_noise: Some(sigma),
+                ..default()
+            })
+            .contains("particle_filter.motion_noise"));
+        }
         assert!(bad(ParticleSettings {
             velocity_share: -0.1,
             ..default()
