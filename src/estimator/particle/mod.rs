@@ -1,0 +1,341 @@
+//! The filter baseline (issue 17): a bootstrap particle filter over the pose, with the
+//! continuous tracker's Gaussian-process feature maps as its likelihood and the temporal
+//! trackers' velocity line as its motion model.
+//!
+//! - Likelihood of feature i at pose q: (1 − ε)·N(fᵢ; μᵢ(q), σᵢ²) + ε/Wᵢ, with μᵢ the learned
+//!   map, σᵢ its validation residual and Wᵢ the width of its range over the samples: the small
+//!   uniform share ε (`outlier_share`) is what a practitioner adds so that one wild feature
+//!   cannot wipe out every particle.
+//! - Motion: a share `velocity_share` of the particles moves by the velocity of the line
+//!   through the last estimates (`temporal.velocity_frames`) and a Gaussian step of σ·Δt per
+//!   axis (`motion_noise` σ in mm/s); the others move to a uniform point of the disc of radius
+//!   `temporal.max_speed` × Δt (the reach), so a pose that leaves the line is found again.
+//!   Until there is a line, σ is at least half the reach. Particles stay inside the sample
+//!   poses' bounding box.
+//! - σ and ε are learned on the validation motion as the temporal trackers learn α
+//!   ([`learn`]), unless given.
+//! - Systematic resampling when the effective sample size falls below half the particles.
+//! - Estimate: the weighted mean; uncertainty: the radius holding 90 % of the weight; a frame
+//!   without a usable feature is the prediction (`predicted`).
+//! - Seeded: every motion starts from the model's seed, so a scenario and its seed give the
+//!   same estimates.
+
+mod learn;
+mod motion;
+
+use learn::{DEFAULT_MOTION_NOISE, DEFAULT_OUTLIER_SHARE};
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::{
+    Continuous, ContinuousSettings, EstimatorError, MotionTracker, PoseEstimate, PoseEstimator,
+    TemporalSettings, TrainingSet,
+};
+use crate::features::FeatureConfig;
+use crate::model_file::{self, corrupted, Stamp};
+use crate::range::within;
+
+/// The particle filter's own settings (`[particle_filter]` in scenarios).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ParticleSettings {
+    /// Number of particles. 2,000 by default: on `scenarios/time.toml` and a held-out motion
+    /// more gave no lower error, fewer lost the pose on some seeds (README, "Tracking over
+    /// time").
+    pub particles: usize,
+    /// σ (mm/s) of each particle's Gaussian step per axis (the step is σ·Δt); `None` learns it
+    /// on the validation motion ([`learn::MOTION_NOISE_CANDIDATES`]), or takes
+    /// [`DEFAULT_MOTION_NOISE`] without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub motion_noise: Option<f64>,
+    /// Share ε of each feature's likelihood that is uniform over its range; `None` learns it
+    /// on the validation motion ([`learn::OUTLIER_SHARE_CANDIDATES`]), or takes
+    /// [`DEFAULT_OUTLIER_SHARE`] without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub outlier_share: Option<f64>,
+    /// Mixed with the training seed.
+    pub seed: u64,
+    /// Share of the particles moved along the velocity line with the Gaussian step at each
+    /// frame; the others move to a uniform point within the reach `temporal.max_speed` × Δt.
+    /// Half by default: σ is learned on a clean validation motion, and the filter has no
+    /// conflict check to keep occluded frames out of the line, so the reach's share is what
+    /// finds a pose that left the line (README, "Tracking over time").
+    pub velocity_share: f64,
+}
+
+impl Default for ParticleSettings {
+    fn default() -> Self {
+        Self {
+            particles: 2000,
+            motion_noise: None,
+            outlier_share: None,
+            seed: 0,
+            velocity_share: 0.5,
+        }
+    }
+}
+
+impl ParticleSettings {
+    /// Checks the ranges.
+    ///
+    /// # Errors
+    /// [`EstimatorError::Training`] naming the field.
+    pub fn check(&self) -> Result<(), EstimatorError> {
+        within(self.particles, 1..=1_000_000)
+            .map_err(|e| EstimatorError::Training(format!("`particle_filter.particles`: {e}")))?;
+        if let Some(sigma) = self.motion_noise {
+            check_motion_noise(sigma).map_err(|e| {
+                EstimatorError::Training(format!("`particle_filter.motion_noise`: {e}"))
+            })?;
+        }
+        if let Some(eps) = self.outlier_share {
+            within(eps, 0.0..=1.0).map_err(|e| {
+                EstimatorError::Training(format!("`particle_filter.outlier_share`: {e}"))
+            })?;
+        }
+        within(self.velocity_share, 0.0..=1.0).map_err(|e| {
+            EstimatorError::Training(format!("`particle_filter.velocity_share`: {e}"))
+        })?;
+        Ok(())
+    }
+}
+
+/// σ must be a finite speed ≥ 0 below 10 m/s (far beyond any workspace crossing per frame).
+fn check_motion_noise(sigma: f64) -> Result<(), String> {
+    within(sigma, 0.0..=10_000.0).map_err(|e| format!("{e} (mm/s)"))
+}
+
+/// The particle filter, fitted: the feature maps and noise scales of a fitted continuous
+/// tracker, with the filter's settings and its learned σ and ε.
+#[derive(Debug, Clone)]
+pub struct ParticleFilter {
+    maps: Continuous,
+    file: ParticleFile,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ParticleFile {
+    #[serde(flatten)]
+    stamp: Stamp,
+    /// The settings as given (`None` where learned).
+    settings: ParticleSettings,
+    /// σ of the Gaussian step (mm/s) in use, and whether it was learned.
+    motion_noise: f64,
+    motion_noise_learned: bool,
+    /// ε in use, and whether it was learned.
+    outlier_share: f64,
+    outlier_share_learned: bool,
+    /// The motion model's reach per second (mm/s), `temporal.max_speed`: the step's spread
+    /// while there is no line yet.
+    max_speed: f64,
+    /// The estimates the velocity line is fitted through, `temporal.velocity_frames`.
+    velocity_frames: usize,
+    /// The seed every motion starts from.
+    seed: u64,
+    /// The continuous tracker's model file text: the feature maps and noise scales.
+    feature_maps: String,
+}
+
+impl ParticleFilter {
+    /// Version of the model file format this build writes and reads (3: σ and ε learned, the
+    /// reach `max_speed` no longer used).
+    pub const FORMAT_VERSION: u32 = 3;
+    /// The `method` of its model files.
+    pub const METHOD: &'static str = "particle_filter";
+
+    /// Fits the feature maps (as the continuous tracker does) on `data`, then learns σ and ε
+    /// on the validation motion where they are not given.
+    ///
+    /// # Errors
+    /// Invalid settings; the continuous tracker's fitting errors.
+    pub fn fit(
+        settings: &ParticleSettings,
+        motion: &TemporalSettings,
+        continuous: &ContinuousSettings,
+        data: &TrainingSet,
+    ) -> Result<Self, EstimatorError> {
+        settings.check()?;
+        let mut fitted = Self::from_maps(
+            settings,
+            motion,
+            Continuous::fit(continuous, data)?,
+            data.provenance.seed,
+        )?;
+        learn::learn(&mut fitted, data)?;
+        Ok(fitted)
+    }
+
+    /// The filter on already fitted feature maps, σ and ε as given or their defaults (nothing
+    /// learned); `seed` is the training seed.
+    ///
+    /// # Errors
+    /// Invalid settings.
+    pub fn from_maps(
+        settings: &ParticleSettings,
+        motion: &TemporalSettings,
+        maps: Continuous,
+        seed: u64,
+    ) -> Result<Self, EstimatorError> {
+        settings.check()?;
+        motion.check()?;
+        let file = ParticleFile {
+            stamp: Stamp::new(Self::METHOD, Self::FORMAT_VERSION),
+            settings: settings.clone(),
+            motion_noise: settings.motion_noise.unwrap_or(DEFAULT_MOTION_NOISE),
+            motion_noise_learned: false,
+            outlier_share: settings.outlier_share.unwrap_or(DEFAULT_OUTLIER_SHARE),
+            outlier_share_learned: false,
+            max_speed: motion.max_speed,
+            velocity_frames: motion.velocity_frames,
+            seed: crate::seed::derive(seed, &format!("particle_filter/{}", settings.seed)),
+            feature_maps: maps.to_json()?,
+        };
+        Ok(Self { maps, file })
+    }
+
+    /// σ of the Gaussian step (mm/s), and whether it was learned.
+    pub fn motion_noise(&self) -> (f64, bool) {
+        (self.file.motion_noise, self.file.motion_noise_learned)
+    }
+
+    /// ε, the uniform share of each feature's likelihood, and whether it was learned.
+    pub fn outlier_share(&self) -> (f64, bool) {
+        (self.file.outlier_share, self.file.outlier_share_learned)
+    }
+
+    /// Reads a model file's text.
+    ///
+    /// # Errors
+    /// [`EstimatorError::File`] naming what is wrong.
+    pub fn from_json(text: &str) -> Result<Self, EstimatorError> {
+        let file: ParticleFile = model_file::parse(text, Self::METHOD, Self::FORMAT_VERSION)?;
+        file.settings
+            .check()
+            .and_then(|()| {
+                TemporalSettings {
+                    max_speed: file.max_speed,
+                    ..TemporalSettings::default()
+                }
+                .check()
+            })
+            .map_err(|e| corrupted(format!("settings: {e}")))?;
+        check_motion_noise(file.motion_noise)
+            .map_err(|e| corrupted(format!("motion_noise: {e}")))?;
+        within(file.outlier_share, 0.0..=1.0)
+            .map_err(|e| corrupted(format!("outlier_share: {e}")))?;
+        let maps = Continuous::from_json(&file.feature_maps).map_err(|e| match e {
+            e @ (EstimatorError::Model(_) | EstimatorError::File(_)) => {
+                corrupted(format!("feature_maps: {e}")).into()
+            }
+            other => other,
+        })?;
+        Ok(Self { maps, file })
+    }
+
+    /// Reads a model file.
+    ///
+    /// # Errors
+    /// As [`ParticleFilter::from_json`], naming the path.
+    pub fn load(path: &Path) -> Result<Self, EstimatorError> {
+        Ok(model_file::load(path, Self::from_json)?)
+    }
+
+    /// log p(features | q) with the frame's usable `values`.
+    fn log_likelihood(&self, values: &[Option<f64>], q: [f64; 2], mapped: &mut [f64]) -> f64 {
+        self.maps.feature_map_into(q, mapped);
+        let ranges = self.maps.feature_ranges();
+        let scales = self.maps.residual_scales();
+        let eps = self.file.outlier_share;
+        let mut total = 0.0;
+        for (i, v) in values.iter().enumerate() {
+            let (Some(v), sigma) = (v, scales[i]) else {
+                continue;
+            };
+            let width = (ranges[i].1 - ranges[i].0).max(f64::MIN_POSITIVE);
+            let z = (v - mapped[i]) / sigma;
+            let gaussian = (-0.5 * z * z).exp() / (sigma * (2.0 * std::f64::consts::PI).sqrt());
+            total += ((1.0 - eps) * gaussian + eps / width)
+                .max(f64::MIN_POSITIVE)
+                .ln();
+        }
+        total
+    }
+}
+
+impl PoseEstimator for ParticleFilter {
+    fn method(&self) -> &'static str {
+        Self::METHOD
+    }
+
+    fn feature_names(&self) -> &[String] {
+        self.maps.feature_names()
+    }
+
+    fn feature_config(&self) -> Option<&FeatureConfig> {
+        self.maps.feature_config()
+    }
+
+    /// A frame alone: the filter's first frame (particles spread over the workspace).
+    fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
+        self.start_motion().next(0.0, features)
+    }
+
+    fn to_json(&self) -> Result<String, EstimatorError> {
+        Ok(model_file::to_text(&self.file)?)
+    }
+
+    fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
+        Box::new(motion::FilterMotion::new(self))
+    }
+}
+
+/// The scenario checks of the particle filter: its section, the `[temporal]` motion model and
+/// the continuous tracker's (its feature maps are fitted with those settings).
+pub(crate) fn check_settings(
+    settings: &super::EstimatorSettings,
+    context: &super::SettingsContext,
+) -> Result<(), String> {
+    super::motion::check_temporal(&settings.temporal, None)?;
+    settings
+        .particle_filter
+        .check()
+        .map_err(|e| format!("[particle_filter]: {e}"))?;
+    super::continuous::check_settings(settings, context)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_are_checked() {
+        let bad = |s: ParticleSettings| s.check().unwrap_err().to_string();
+        let default = ParticleSettings::default;
+        assert!(bad(ParticleSettings {
+            particles: 0,
+            ..default()
+        })
+        .contains("particle_filter.particles"));
+        assert!(bad(ParticleSettings {
+            outlier_share: Some(1.5),
+            ..default()
+        })
+        .contains("particle_filter.outlier_share"));
+        for sigma in [-1.0, f64::NAN, f64::INFINITY] {
+            assert!(bad(ParticleSettings {
+                motion_noise: Some(sigma),
+                ..default()
+            })
+            .contains("particle_filter.motion_noise"));
+        }
+        assert!(bad(ParticleSettings {
+            velocity_share: -0.1,
+            ..default()
+        })
+        .contains("particle_filter.velocity_share"));
+        assert!(default().check().is_ok());
+    }
+}
