@@ -3,6 +3,7 @@
 mod adaptive;
 mod baselines;
 mod cli;
+mod confidence;
 mod conformance;
 mod continuous;
 mod dataset;

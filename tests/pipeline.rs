@@ -197,23 +197,24 @@ fn paper_table_meets_its_expectations() {
     // same run, and below the best discrete evidential model (`best.toml` n24, 0.2986 mm).
     assert!(of(e, "continuous") <= 1.5 * of(e, "gp"));
     assert!(of(e, "continuous") < 0.2986);
-    // Its plausibility regions at the level chosen for 90 % of the validation poses, on the
-    // clean test frames (README): 0.945 with all 8 features, 0.830 with the 6 size functions.
+    // Its regions, calibrated on the validation motion for 90 %, on the clean test frames it
+    // answered (README): 0.937 of 191 with all 8 features (9 abstained), 0.848 of 198 with the
+    // 6 size functions.
     let region = |s: &RunSummary| {
         s.method("continuous")
             .and_then(|m| m.region.clone())
             .unwrap()
     };
-    for (s, coverage, area) in [(e, 0.945, 0.004412), (a, 0.830, 0.9951)] {
+    for (s, frames, coverage, area) in [(e, 191, 0.93717, 0.004469), (a, 198, 0.84848, 1.006138)] {
         let r = region(s);
         assert_eq!(
             (r.frames, r.frames_without_region),
-            (200, 0),
+            (frames, 0),
             "{}",
             s.scenario
         );
         assert!(
-            (r.coverage - coverage).abs() < 1e-9,
+            (r.coverage - coverage).abs() < 1e-5,
             "{}: {r:?}",
             s.scenario
         );
@@ -338,8 +339,8 @@ fn best_model_and_its_baselines_meet_their_expectations() {
         .method("continuous")
         .and_then(|m| m.region.clone())
         .unwrap();
-    assert!((region.coverage - 0.955).abs() < 1e-9, "{region:?}");
-    assert!(close(region.mean_area, 0.001997), "{region:?}");
+    assert!((region.coverage - 0.9375).abs() < 1e-9, "{region:?}");
+    assert!(close(region.mean_area, 0.002539), "{region:?}");
 }
 
 /// Every variant of a scenario file, run on two threads, by name.
@@ -411,7 +412,7 @@ fn states_and_noise_tables_meet_their_expectations() {
                     .method("continuous")
                     .and_then(|m| m.region.clone())
                     .unwrap();
-                assert!((0.86..=0.89).contains(&r.coverage), "σ {sigma}: {r:?}");
+                assert!((0.87..=0.92).contains(&r.coverage), "σ {sigma}: {r:?}");
             }
         }
     }

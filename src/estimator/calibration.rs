@@ -69,11 +69,13 @@ pub struct Calibration {
     pub coverage: f64,
     /// The split-conformal quantile of the Mahalanobis scores (`None`: too few validation frames
     /// for the coverage, so every region is the whole workspace).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radius: Option<f64>,
     /// Added to Σ's diagonal (mm²): a hundredth of the median squared validation error.
     pub floor: f64,
     /// Detection scores above this make the method abstain (`None`: it has no score, or too few
     /// validation frames to set one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detection_limit: Option<f64>,
     /// Regions larger than this (mm²) make the method abstain.
     pub max_region_area: f64,

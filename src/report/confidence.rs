@@ -15,7 +15,8 @@ use super::ErrorStats;
 /// Coverages at which the curve is sampled: 5 %, 10 %, …, 100 %.
 pub const CURVE_POINTS: usize = 20;
 
-/// Coverage and size of a method's plausibility regions over the clean frames with a truth.
+/// Coverage and size of the regions a method answered with (abstentions left out, see
+/// [`ConfidenceSummary`]) over the clean frames with a truth.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RegionSummary {
     /// Clean frames whose estimate came with a region.
@@ -35,6 +36,7 @@ impl RegionSummary {
     pub fn of(records: &[FrameRecord]) -> Option<Self> {
         let clean: Vec<&FrameRecord> = (records.iter())
             .filter(|r| !r.corrupted() && r.estimate.is_some() && r.truth.is_some())
+            .filter(|r| !r.flag_set.abstained)
             .collect();
         let with: Vec<(&FrameRecord, f64)> = (clean.iter())
             .filter_map(|r| r.region_area.map(|a| (*r, a)))

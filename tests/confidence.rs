@@ -1,0 +1,122 @@
+//! Confidence: `scenarios/confidence.toml` meets its expectations (coverage, abstentions and AURC
+//! of every method, in both directions) and the README's statements on seed 1 hold: regions hold
+//! about 90 % of clean frames, few clean frames abstain, the bright box and glare are abstained
+//! on, and where the continuous tracker's AURC stands against the GP's.
+
+use std::collections::HashMap;
+
+use evitrack::experiment::{run_all, Workbench};
+use evitrack::report::{ConfidenceSummary, RunSummary};
+use evitrack::scenario::ScenarioSet;
+
+fn confidence_sweep() -> HashMap<String, RunSummary> {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/confidence.toml");
+    let set = ScenarioSet::load(std::path::Path::new(path)).expect("confidence.toml is valid");
+    let bench = Workbench::new();
+    run_all(&set.variants, 2, &bench, &|_, _, _, _| {})
+        .into_iter()
+        .zip(&set.variants)
+        .map(|(result, variant)| {
+            let output = result.unwrap_or_else(|e| panic!("variant {} failed: {e}", variant.name));
+            (variant.name.clone(), output.summary)
+        })
+        .collect()
+}
+
+fn confidence<'a>(
+    runs: &'a HashMap<String, RunSummary>,
+    variant: &str,
+    method: &str,
+) -> &'a ConfidenceSummary {
+    runs[&format!("confidence-{variant}")]
+        .method(method)
+        .and_then(|m| m.confidence.as_ref())
+        .unwrap_or_else(|| panic!("{variant}: {method} has no confidence summary"))
+}
+
+const WITH_REGIONS: [&str; 7] = [
+    "evidential",
+    "evidential_temporal",
+    "continuous",
+    "continuous_temporal",
+    "knn",
+    "gp",
+    "particle_filter",
+];
+
+#[test]
+fn the_confidence_sweep_meets_its_expectations_and_the_readme_statements() {
+    let runs = confidence_sweep();
+    for (name, run) in &runs {
+        let missed = run.regressions();
+        assert!(missed.is_empty(), "{name}: {missed:#?}");
+    }
+    let frames = runs["confidence-clean"].frames as f64;
+    for method in WITH_REGIONS {
+        // Calibrated on the validation motion, the regions hold about 90 % of clean frames, and
+        // a method abstains on at most 2 % of them.
+        let clean = confidence(&runs, "clean", method);
+        let coverage = clean.coverage_clean.expect("regions");
+        assert!((0.85..=0.95).contains(&coverage), "{method}: {coverage}");
+        assert!(
+            clean.abstained_clean as f64 <= 0.02 * frames,
+            "{method}: {clean:?}"
+        );
+        // Ranked by its own doubt, its surest frames are its better ones.
+        assert!(
+            clean.all.aurc < clean.all.curve[19],
+            "{method}: {:?}",
+            clean.all
+        );
+        assert!(clean.all.oracle_aurc <= clean.all.aurc);
+    }
+    // The centre says nothing: a flat curve and no region.
+    let centre = confidence(&runs, "clean", "centre");
+    assert!(centre
+        .all
+        .curve
+        .iter()
+        .all(|&r| (r - centre.all.aurc).abs() < 1e-9 * r));
+    assert_eq!(centre.coverage_clean, None);
+    // Every method but the filter abstains on every bright-box and glare frame (the filter on
+    // most); so none answers those frames with a confident error.
+    for variant in ["bright-box", "glare"] {
+        let struck = runs[&format!("confidence-{variant}")]
+            .method("evidential")
+            .and_then(|m| m.faults.as_ref())
+            .map(|f| f.corrupted_frames)
+            .expect("faults");
+        for method in &WITH_REGIONS[..6] {
+            let c = confidence(&runs, variant, method);
+            assert!(
+                c.abstained_corrupted as f64 >= 0.97 * struck as f64,
+                "{variant} {method}: {} of {struck}",
+                c.abstained_corrupted
+            );
+        }
+        let filter = confidence(&runs, variant, "particle_filter");
+        assert!(
+            filter.coverage_corrupted.unwrap() >= 0.85,
+            "{variant}: {filter:?}"
+        );
+    }
+    // The continuous tracker's AURC over all frames is below the GP's under the bright box,
+    // glare and salt-and-pepper; under the dark occluder the two are within 10 % and its
+    // regions miss more than a tenth of the struck frames.
+    let aurc = |variant: &str, method: &str| confidence(&runs, variant, method).all.aurc;
+    for variant in ["bright-box", "glare", "salt-pepper"] {
+        assert!(
+            aurc(variant, "continuous") < 0.7 * aurc(variant, "gp"),
+            "{variant}: {} against {}",
+            aurc(variant, "continuous"),
+            aurc(variant, "gp")
+        );
+    }
+    let dark = aurc("occluder-dark", "continuous_temporal") / aurc("occluder-dark", "gp");
+    assert!((0.8..=1.35).contains(&dark), "{dark}");
+    let dark_cover = confidence(&runs, "occluder-dark", "continuous").coverage_corrupted;
+    assert!(dark_cover.unwrap() < 0.9, "{dark_cover:?}");
+    // The GP's regions hold few salt-and-pepper frames: its detection score flags fewer.
+    let gp = confidence(&runs, "salt-pepper", "gp");
+    assert!(gp.coverage_corrupted.unwrap() < 0.8, "{gp:?}");
+}
