@@ -168,14 +168,16 @@ impl Workbench {
     }
 }
 
-/// Everything a shared fit depends on, as bytes: the method, its settings, the features and
-/// the training and validation data bit for bit (not the provenance). `None` for methods that
-/// do not share fits.
+/// Everything a shared fit depends on, as bytes: the method, its settings and the confidence
+/// levels it is calibrated at, the features and the training and validation data bit for bit
+/// (not the provenance). `None` for methods that do not share fits.
 fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> Option<Vec<u8>> {
     let method_settings = (method.entry().shared_fit?)(settings)?;
     let header = serde_json::json!({
         "method": method,
         "settings": method_settings,
+        // The shared fit is calibrated on the validation motion at these levels.
+        "confidence": settings.confidence,
         "features": data.feature_names,
         "config": data.feature_config,
         "missing_penalty": data.missing_penalty.to_bits(),
@@ -207,5 +209,31 @@ fn append_labelled(key: &mut Vec<u8>, set: &Labelled) {
                 None => key.push(0),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_shared_fit_is_keyed_by_its_confidence_levels() {
+        let names = vec!["f".to_string()];
+        let poses = [[0.0, 0.0], [1.0, 1.0]];
+        let rows = vec![vec![Some(0.0)], vec![Some(1.0)]];
+        let data = TrainingSet::new(
+            &names,
+            Labelled {
+                poses: &poses,
+                rows: &rows,
+            },
+        );
+        let settings = EstimatorSettings::default();
+        let mut other = settings.clone();
+        other.confidence.coverage = 0.8;
+        let key = |s: &EstimatorSettings| fit_key(Method::GP, s, &data).expect("the GP shares");
+        assert_eq!(key(&settings), key(&settings.clone()));
+        assert_ne!(key(&settings), key(&other));
+        assert!(fit_key(Method::KNN, &settings, &data).is_none());
     }
 }
