@@ -53,57 +53,64 @@ fn the_faults_sweep_meets_its_expectations_and_the_readme_claims() {
         assert!(missed.is_empty(), "{name}: {missed:#?}");
     }
     let stuck = faults(&runs, "stuck", "evidential");
+    let paper = faults(&runs, "stuck-paper", "evidential");
     let open = faults(&runs, "stuck-inf", "evidential");
     let q99 = faults(&runs, "stuck-q99", "evidential");
     // The level of conflict tells the corrupted frames apart.
-    for f in [stuck, open, q99] {
+    for f in [stuck, paper, open, q99] {
         assert!(f.detection_auc.unwrap() >= 0.95, "{f:?}");
         assert_eq!(f.corrupted_frames, 56);
     }
-    // Combining everything degrades at least 3×; learning the threshold cuts that.
+    // Combining everything degrades at least 3×; learning the threshold cuts that: to under a
+    // quarter with the paper's rule and the 99th percentile, under 0.4 with the default (which
+    // keeps one stuck feature beside six good ones more often).
     let ratio = |f: &FaultSummary| mean(f.error_corrupted) / mean(f.error_clean);
     assert!(ratio(open) >= 3.0, "{}", ratio(open));
-    assert!(mean(stuck.error_corrupted) < 0.25 * mean(open.error_corrupted));
+    assert!(mean(paper.error_corrupted) < 0.25 * mean(open.error_corrupted));
     assert!(mean(q99.error_corrupted) < 0.25 * mean(open.error_corrupted));
+    assert!(mean(stuck.error_corrupted) < 0.4 * mean(open.error_corrupted));
     // The issue's bound (1.5×) is missed: the paper's rule gives 2.0× while losing accuracy on
-    // clean frames, the 99th percentile keeps clean frames and gives 2.5×, and the floor — the
-    // two features absent from every frame — is itself above 1.5× the clean error.
+    // clean frames, the 99th percentile gives 2.5×, the default 4.07× with the clean frames of
+    // no threshold, and the floor — the two features absent from every frame — is itself above
+    // 1.5× the clean error.
     assert!(
-        ratio(stuck) > 1.95 && ratio(stuck) < 2.1,
+        ratio(paper) > 1.95 && ratio(paper) < 2.1,
         "{}",
-        ratio(stuck)
+        ratio(paper)
     );
-    assert!(mean(stuck.error_clean) > 1.05 * mean(open.error_clean));
+    assert!(mean(paper.error_clean) > 1.05 * mean(open.error_clean));
     assert!(ratio(q99) > 2.4, "{}", ratio(q99));
+    assert!((4.0..4.15).contains(&ratio(stuck)), "{}", ratio(stuck));
+    assert_eq!(mean(stuck.error_clean), mean(open.error_clean));
     let floor = method(&runs, "absent", "evidential").error.unwrap().mean;
     assert!(floor > 1.5 * mean(open.error_clean), "{floor}");
-    // On the corrupted frames the evidential tracker beats both regressors.
+    // On the corrupted frames the evidential tracker beats both regressors (3.4× and 7.6×).
     for baseline in ["knn", "gp"] {
         let b = faults(&runs, "stuck", baseline);
         assert!(
-            mean(stuck.error_corrupted) < 0.2 * mean(b.error_corrupted),
+            mean(stuck.error_corrupted) < 0.3 * mean(b.error_corrupted),
             "{baseline}: {b:?}"
         );
     }
-    // The paper's rule costs clean accuracy (9 %); the 99th percentile keeps it (within 2 %).
+    // The paper's rule costs clean accuracy (9 %); the 99th percentile keeps it within 2 %, the
+    // default whole.
     let clean = |v: &str| method(&runs, v, "evidential").error.unwrap().mean;
-    assert!(clean("clean") > 1.08 * clean("clean-inf"));
+    assert!(clean("clean-paper") > 1.08 * clean("clean-inf"));
     assert!(clean("clean-q99") < 1.02 * clean("clean-inf"));
+    assert_eq!(clean("clean"), clean("clean-inf"));
     // Offset and noise bursts: lower error than 6-NN on the corrupted frames; the GP wins the
     // offset.
     for variant in ["offset", "noise-burst"] {
         let e = mean(faults(&runs, variant, "evidential").error_corrupted);
         assert!(
-            e < 0.5 * mean(faults(&runs, variant, "knn").error_corrupted),
+            e < 0.7 * mean(faults(&runs, variant, "knn").error_corrupted),
             "{variant}"
         );
     }
     let offset_gp = mean(faults(&runs, "offset", "gp").error_corrupted);
     assert!(offset_gp < mean(faults(&runs, "offset", "evidential").error_corrupted));
-    assert_eq!(
-        method(&runs, "clean", "evidential").frames_with_features_left_out,
-        49
-    );
+    let left_out = |v: &str| method(&runs, v, "evidential").frames_with_features_left_out;
+    assert_eq!((left_out("clean-paper"), left_out("clean")), (49, 0));
     // What the image faults change: a dark occluder all 8 features in 19 of its 31 corrupted
     // frames; salt and pepper the barycentre most.
     let changed = |variant: &str| -> Vec<Vec<usize>> {
@@ -138,13 +145,13 @@ fn the_faults_sweep_meets_its_expectations_and_the_readme_claims() {
     assert!(mean(split.error_corrupted) > 2.0 * mean(stuck.error_corrupted));
     // The continuous evidential tracker (README, issue 13): with its learned threshold, lower
     // error on the stuck frames than every baseline and the paper's tracker, conflict AUC ≥ 0.95,
-    // the stuck features found (recall 1, precision 0.93), at the cost of 10 of 200 clean frames
-    // losing features (0.0306 against 0.0193 mm with no threshold); a fixed threshold of 30
-    // keeps every clean frame whole and still leaves the stuck features out.
+    // the stuck features found (recall and precision 1), and no clean frame losing a feature
+    // (the 99th percentile took them from 10 of 200); a fixed threshold of 30 keeps every
+    // clean frame whole too and still leaves the stuck features out.
     let continuous = faults(&runs, "stuck", "continuous");
     assert!(continuous.detection_auc.unwrap() >= 0.95);
     let region = method(&runs, "stuck", "continuous").region.clone().unwrap();
-    assert!((region.coverage - 0.9275).abs() < 1e-3 && (region.mean_area - 0.00444).abs() < 1e-4);
+    assert!((region.coverage - 0.938).abs() < 1e-3 && (region.mean_area - 0.0043).abs() < 1e-4);
     for other in ["evidential", "knn", "gp"] {
         let b = faults(&runs, "stuck", other);
         assert!(
@@ -153,11 +160,11 @@ fn the_faults_sweep_meets_its_expectations_and_the_readme_claims() {
         );
     }
     assert!(continuous.left_out_recall.unwrap() > 0.99);
-    assert!(continuous.left_out_precision.unwrap() > 0.9);
+    assert!(continuous.left_out_precision.unwrap() > 0.99);
     let floor = method(&runs, "absent", "continuous").error.unwrap().mean;
     assert!(mean(continuous.error_corrupted) < 1.0 * floor, "{floor}");
     let clean_continuous = |v: &str| method(&runs, v, "continuous");
-    assert_eq!(clean_continuous("clean").frames_with_features_left_out, 10);
+    assert_eq!(clean_continuous("clean").frames_with_features_left_out, 0);
     assert_eq!(
         clean_continuous("clean-fixed30").frames_with_features_left_out,
         0

@@ -192,6 +192,16 @@ fn the_temporal_evidential_tracker_predicts_lost_frames_and_round_trips() {
     let (alpha, learned) = fitted.reliability();
     assert!(learned, "learned on the validation motion");
     assert!(evitrack::estimator::RELIABILITY_CANDIDATES.contains(&alpha));
+    // On a straight path the velocity line helps, so it is kept; a file whose line is neither
+    // the settings' nor 0 is refused, naming the field.
+    assert_eq!(fitted.velocity_frames(), 3);
+    let text = fitted.to_json().unwrap();
+    let broken = text.replace("\n  \"velocity_frames\": 3,", "\n  \"velocity_frames\": 2,");
+    assert_ne!(broken, text);
+    let error = TemporalEvidential::from_json(&broken)
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("velocity_frames"), "{error}");
 
     let estimator = Method::EVIDENTIAL_TEMPORAL
         .fit(&settings(Some(0.9)), &data.training())
@@ -350,6 +360,51 @@ fn without_a_velocity_line_predictions_stay_within_reach_of_the_last_estimate() 
         // The continuous tracker holds the last estimate exactly.
         if method == Method::CONTINUOUS_TEMPORAL {
             assert!(DROPPED.clone().all(|k| estimates[k].pose == Some(last)));
+        }
+    }
+}
+
+/// `scenarios/coarse.toml` (issue 27): on coarse frames (2 mm mesh, 4 states) the velocity line
+/// drifted and the temporal tracker was worse than per frame. The validation motion now turns the
+/// line off, and the temporal tracker is below the per-frame one on every seed of 1–5; seed 1 sits
+/// within 2.9 % of its measured errors, from above (`sweep --check`) and from below (here).
+#[test]
+fn on_coarse_frames_the_past_does_not_hurt() {
+    use evitrack::experiment::{run_all, Workbench};
+    use evitrack::scenario::{ScenarioSet, SeedList};
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/coarse.toml");
+    let set = ScenarioSet::load(std::path::Path::new(path)).unwrap();
+    let runs = set.seeded(Some(&SeedList::Count(5))).unwrap();
+    let outputs = run_all(&runs, 2, &Workbench::new(), &|_, _, _, _| {});
+    // Measured, seed 1: evidential / evidential_temporal.
+    let measured = [("clean", 1.4534, 1.3514), ("fast", 1.3145, 1.1416)];
+    for (run, output) in runs.iter().zip(outputs) {
+        let output = output.unwrap_or_else(|e| panic!("{} failed: {e}", run.name()));
+        let summary = &output.summary;
+        let mean = |m: &str| summary.method(m).and_then(|m| m.error).unwrap().mean;
+        let (per_frame, temporal) = (mean("evidential"), mean("evidential_temporal"));
+        let seed = summary.seed;
+        assert!(
+            temporal < per_frame,
+            "{} seed {seed}: {temporal} ≥ {per_frame}",
+            run.name()
+        );
+        let fitted = (output.estimators.iter())
+            .find_map(|e| (e.as_ref() as &dyn std::any::Any).downcast_ref::<TemporalEvidential>())
+            .unwrap();
+        assert_eq!(fitted.velocity_frames(), 0, "{} seed {seed}", run.name());
+        if seed == 1 {
+            let missed = summary.regressions();
+            assert!(missed.is_empty(), "{missed:#?}");
+            let (_, e, t) = *measured
+                .iter()
+                .find(|(v, _, _)| run.name() == format!("coarse-{v}"))
+                .unwrap();
+            assert!(
+                per_frame >= e / 1.029 && temporal >= t / 1.029,
+                "{}",
+                run.name()
+            );
         }
     }
 }

@@ -19,8 +19,11 @@
 //!   A frame whose features are all outweighed by the past is flagged `predicted` too.
 //! - Between the sample poses: on a frame the past joins (and on a prediction), the weights over
 //!   the sample poses are combined with the line's predicted pose on the refined poses
-//!   ([`Refinement`], spread `velocity_spread`), so the estimate can fall between samples. The
-//!   uncertainty radius stays that of the sample weights.
+//!   ([`Refinement`], spread `velocity_spread`, by default half the spacing widened to the RMS of
+//!   the line's last misses), so the estimate can fall between samples. The uncertainty radius
+//!   stays that of the sample weights.
+//! - What is learned on the validation motion: α, and whether the line helps at all
+//!   (`learn_velocity`; on coarse frames constant position wins).
 
 use std::path::Path;
 
@@ -28,8 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use super::evidential::pose_estimate;
 use super::motion::{
-    learned_reliability, motion_error, Refinement, TemporalSettings, VelocityLine,
-    DEFAULT_RELIABILITY,
+    learned_motion, motion_error, Refinement, TemporalSettings, VelocityLine, DEFAULT_RELIABILITY,
 };
 use super::{
     EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
@@ -38,6 +40,7 @@ use super::{
 use crate::features::FeatureConfig;
 use crate::model::EvidentialModel;
 use crate::model_file::{self, corrupted, Stamp};
+use crate::planar::distance;
 use crate::range::within;
 use crate::track::{PoseRule, SelectionPolicy};
 
@@ -52,7 +55,8 @@ pub struct TemporalEvidential {
     refinement: Option<Refinement>,
 }
 
-/// The model file: the settings, the reliability used and the paper tracker's own model file.
+/// The model file: the settings, the reliability and velocity line used and the paper
+/// tracker's own model file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TemporalFile {
@@ -61,18 +65,24 @@ struct TemporalFile {
     settings: TemporalSettings,
     reliability: f64,
     reliability_learned: bool,
+    /// The estimates the velocity line goes through (`settings.velocity_frames`, or 0 when
+    /// the validation motion showed constant position lower).
+    velocity_frames: usize,
+    /// The RMS error (mm) of the paper's tracker alone on the validation motion (0 without
+    /// one): the part of the line's misses that is the frames' own error, not the line's.
+    frame_error: f64,
     /// The evidential model file's text.
     evidential_model: String,
 }
 
 impl TemporalEvidential {
     /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 2;
+    pub const FORMAT_VERSION: u32 = 3;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "evidential_temporal";
 
-    /// Fits the paper's tracker on `data`, then learns α on the validation motion when it is
-    /// not given.
+    /// Fits the paper's tracker on `data`, then learns on the validation motion α (when it is
+    /// not given) and whether the velocity line helps (`learn_velocity`).
     ///
     /// # Errors
     /// Invalid settings (the splitting policy is refused); the evidential tracker's errors.
@@ -90,14 +100,29 @@ impl TemporalEvidential {
             ));
         }
         let inner = Evidential::fit(evidential, data)?;
-        let mut fitted = Self::new(inner, settings.clone(), DEFAULT_RELIABILITY, false)?;
-        let learned = learned_reliability(settings, data, |alpha| {
+        let alpha = settings.reliability.unwrap_or(DEFAULT_RELIABILITY);
+        let mut fitted = Self::new(inner, settings.clone(), alpha)?;
+        if let Some(v) = &data.validation {
+            let mut total = 0.0;
+            for (row, truth) in v.rows.iter().zip(v.poses) {
+                let pose = fitted.inner.estimate(row)?.pose;
+                total += pose
+                    .map_or(data.missing_penalty, |p| distance(p, *truth))
+                    .powi(2);
+            }
+            fitted.file.frame_error = (total / v.rows.len().max(1) as f64).sqrt();
+        }
+        let learned = learned_motion(settings, data, |alpha, frames| {
             fitted.file.reliability = alpha;
+            fitted.file.velocity_frames = frames;
             motion_error(&fitted, data)
         })?;
-        if let Some(alpha) = learned {
-            fitted.file.reliability = alpha;
+        fitted.file.reliability = alpha;
+        fitted.file.velocity_frames = settings.velocity_frames;
+        if let Some(choice) = learned {
+            fitted.file.reliability = choice.reliability;
             fitted.file.reliability_learned = settings.reliability.is_none();
+            fitted.file.velocity_frames = choice.velocity_frames;
         }
         Ok(fitted)
     }
@@ -106,13 +131,14 @@ impl TemporalEvidential {
         inner: Evidential,
         settings: TemporalSettings,
         reliability: f64,
-        reliability_learned: bool,
     ) -> Result<Self, EstimatorError> {
         let file = TemporalFile {
             stamp: Stamp::new(Self::METHOD, Self::FORMAT_VERSION),
+            velocity_frames: settings.velocity_frames,
+            frame_error: 0.0,
             settings,
             reliability,
-            reliability_learned,
+            reliability_learned: false,
             evidential_model: inner.to_json()?,
         };
         Ok(Self::assemble(inner, file))
@@ -137,6 +163,12 @@ impl TemporalEvidential {
         (self.file.reliability, self.file.reliability_learned)
     }
 
+    /// The estimates the velocity line goes through (0: constant position, as the validation
+    /// motion chose when `learn_velocity`).
+    pub fn velocity_frames(&self) -> usize {
+        self.file.velocity_frames
+    }
+
     /// The paper's tracker inside.
     pub fn evidential(&self) -> &Evidential {
         &self.inner
@@ -152,6 +184,14 @@ impl TemporalEvidential {
             .check()
             .map_err(|e| corrupted(format!("settings: {e}")))?;
         within(file.reliability, 0.0..=1.0).map_err(|e| corrupted(format!("reliability: {e}")))?;
+        within(file.frame_error, 0.0..=1e5).map_err(|e| corrupted(format!("frame_error: {e}")))?;
+        if ![0, file.settings.velocity_frames].contains(&file.velocity_frames) {
+            return Err(corrupted(format!(
+                "velocity_frames: {} is neither the settings' {} nor 0",
+                file.velocity_frames, file.settings.velocity_frames
+            ))
+            .into());
+        }
         let model = EvidentialModel::from_json(&file.evidential_model)
             .map_err(|e| corrupted(format!("evidential_model: {e}")))?;
         let inner = Evidential::from_model(model)?;
@@ -199,7 +239,8 @@ impl PoseEstimator for TemporalEvidential {
         Box::new(EvidentialMotion {
             estimator: self,
             past: None,
-            line: VelocityLine::new(self.file.settings.velocity_frames),
+            line: VelocityLine::new(self.file.velocity_frames),
+            misses: Vec::new(),
         })
     }
 }
@@ -211,21 +252,44 @@ struct EvidentialMotion<'a> {
     past: Option<(f64, Vec<f64>)>,
     /// The line through the last estimates of frames whose own features outweighed the past.
     line: VelocityLine,
+    /// The squared distances between the line's last predictions and those frames' estimates
+    /// on the sample weights, at most [`MISS_FRAMES`], oldest first.
+    misses: Vec<f64>,
 }
 
+/// How many of the line's last misses set its spread.
+const MISS_FRAMES: usize = 5;
+
 impl EvidentialMotion<'_> {
+    /// The velocity prediction's spread: as set, or half the sample spacing widened to what the
+    /// line's last misses hold beyond the frames' own error (mean square minus the validation
+    /// one): on a tight fast circle the line lags by more than half a spacing, and a tighter
+    /// belief pulls the estimate off the path.
+    fn spread(&self, refinement: &Refinement) -> f64 {
+        let file = &self.estimator.file;
+        (file.settings.velocity_spread)
+            .unwrap_or_else(|| line_spread(refinement.spacing(), &self.misses, file.frame_error))
+    }
+
+    /// Keeps how far the line's prediction at `time` lay from `measured`, a frame's estimate
+    /// on the sample weights.
+    fn remember_miss(&mut self, time: f64, measured: Option<[f64; 2]>) {
+        if let (Some(p), Some(m)) = (self.line.predict(time), measured) {
+            self.misses
+                .push((p[0] - m[0]).powi(2) + (p[1] - m[1]).powi(2));
+            if self.misses.len() > MISS_FRAMES {
+                self.misses.remove(0);
+            }
+        }
+    }
+
     /// The estimate of `weights` over the sample poses refined with the velocity prediction
     /// at `time`; `None` when there is no prediction (fewer than two estimates since the last
     /// restart) or no refinement.
     fn refined(&self, time: f64, weights: &[f64]) -> Option<[f64; 2]> {
         let refinement = self.estimator.refinement.as_ref()?;
         let predicted = self.line.predict(time)?;
-        let spread = self
-            .estimator
-            .file
-            .settings
-            .velocity_spread
-            .unwrap_or(0.5 * refinement.spacing());
+        let spread = self.spread(refinement);
         let map = self.estimator.inner.tracker().settings().estimator == PoseRule::Map;
         refinement.estimate(weights, predicted, spread, map)
     }
@@ -269,6 +333,10 @@ impl MotionTracker for EvidentialMotion<'_> {
                 }
             }
             let own = outcome.frame.group.len();
+            // Only frames that would feed the line measure its miss.
+            if own as f64 > weight {
+                self.remember_miss(time, outcome.frame.estimate);
+            }
             self.line
                 .feed(time, estimate.pose, own, weight, outcome.past_joined);
             self.past = scaled_to_max(&outcome.frame.plausibility).map(|c| (time, c));
@@ -291,6 +359,13 @@ impl MotionTracker for EvidentialMotion<'_> {
         self.past = Some((time, moved));
         Ok(estimate)
     }
+}
+
+/// Half the sample `spacing`, or the RMS of the line's squared `misses` beyond the frames' own
+/// error `frame_error` when that is wider.
+fn line_spread(spacing: f64, misses: &[f64], frame_error: f64) -> f64 {
+    let mean = misses.iter().sum::<f64>() / misses.len().max(1) as f64;
+    (0.5 * spacing).max((mean - frame_error * frame_error).max(0.0).sqrt())
 }
 
 /// The contour scaled to maximum 1; `None` when it has no positive finite maximum.
@@ -362,6 +437,16 @@ mod tests {
             dilate(&poses, &contour, 0.6, [1.0, 0.0]),
             vec![0.0, 0.0, 1.0, 0.2]
         );
+    }
+
+    #[test]
+    fn the_line_widens_only_by_what_it_misses_beyond_the_frames_own_error() {
+        // No miss yet, or misses no larger than the frames' own error: half the spacing.
+        assert_eq!(line_spread(1.0, &[], 0.5), 0.5);
+        assert_eq!(line_spread(1.0, &[0.25, 0.36], 0.6), 0.5);
+        // Misses of 1 mm (mean square 1) with frames 0.6 mm off: the line's own 0.8 mm.
+        assert!((line_spread(1.0, &[1.0, 1.0], 0.6) - 0.8).abs() < 1e-12);
+        assert!((line_spread(1.0, &[2.0, 0.0], 0.6) - 0.8).abs() < 1e-12);
     }
 
     #[test]

@@ -352,12 +352,12 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     };
     let struck_mean =
         |variant: &str, name: &str| (1..=5).map(|s| struck(variant, s, name)).sum::<f64>() / 5.0;
-    // Occlusion bursts: 7.843 → 2.322 mm (3.38×), 2.40× or more on every seed (2.44× with a
-    // 50 mm/s reach).
+    // Occlusion bursts: 8.270 → 2.597 mm (3.18×), 2.28× or more on every seed (2.39× with a
+    // 50 mm/s reach); lower than the particle filter's 3.983.
     let ratio =
         struck_mean("occlusion", "evidential") / struck_mean("occlusion", "evidential_temporal");
-    assert!(ratio >= 3.28, "occlusion: {ratio}");
-    for (variant, least) in [("occlusion", 2.33), ("occlusion-v50", 2.36)] {
+    assert!(ratio >= 3.08, "occlusion: {ratio}");
+    for (variant, least) in [("occlusion", 2.21), ("occlusion-v50", 2.32)] {
         let lowest = (1..=5)
             .map(|seed| {
                 struck(variant, seed, "evidential") / struck(variant, seed, "evidential_temporal")
@@ -410,24 +410,46 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     assert!(filter("clean") * 10.0 < mean("clean", "evidential_temporal"));
     assert!(filter("fast") < mean("fast", "evidential_temporal"));
     // The continuous tracker over time: 10.168 → 3.495 mm on struck frames (2.91×), 2.47× or
+    let (temporal, filter) = (
+        struck_mean("occlusion", "evidential_temporal"),
+        struck_mean("occlusion", "particle_filter"),
+    );
+    assert!(temporal * 1.5 < filter, "{temporal} vs {filter}");
+    // The filter: more precise than the temporal evidential tracker on clean frames (0.215
+    // against 0.412 mm), less than the continuous tracker over time on clean and lost frames,
+    // more on struck ones (3.983 against 4.613 mm, its threshold now keeping clean frames).
+    assert!(mean("clean", "particle_filter") < mean("clean", "evidential_temporal"));
+    assert!(mean("clean", "continuous_temporal") < mean("clean", "particle_filter"));
+    let (continuous, filter) = (
+        struck_mean("dropped", "continuous_temporal"),
+        struck_mean("dropped", "particle_filter"),
+    );
+    assert!(continuous < filter, "dropped: {continuous} vs {filter}");
+    let (continuous, filter) = (
+        struck_mean("occlusion", "continuous_temporal"),
+        struck_mean("occlusion", "particle_filter"),
+    );
+    assert!(filter < continuous, "occlusion: {continuous} vs {filter}");
+    // The continuous tracker over time: 9.631 → 4.613 mm on struck frames (2.09×), 1.18× or
     // more on every seed with 50 mm/s; the same estimates as per frame on clean frames and on
     // the fast circle.
     let ratio =
         struck_mean("occlusion", "continuous") / struck_mean("occlusion", "continuous_temporal");
-    assert!(ratio >= 2.82, "continuous, occlusion: {ratio}");
+    assert!(ratio >= 2.03, "continuous, occlusion: {ratio}");
     for seed in 1..=5 {
         let r = struck("occlusion-v50", seed, "continuous")
             / struck("occlusion-v50", seed, "continuous_temporal");
-        assert!(r >= 2.4, "continuous, occlusion-v50 seed {seed}: {r}");
+        assert!(r >= 1.14, "continuous, occlusion-v50 seed {seed}: {r}");
     }
     for variant in ["clean", "fast", "fast-v50"] {
         let r = mean(variant, "continuous_temporal") / mean(variant, "continuous");
         assert!((r - 1.0).abs() < 1e-3, "continuous, {variant}: {r}");
     }
-    // Clean frames: 0.515 → 0.451 mm (0.877×), lower on every seed; the fast circle: 0.929×
-    // with the 80 mm/s reach and 0.929× with 50 mm/s (no lag).
+    // Clean frames: 0.459 → 0.412 mm (0.896×), lower on every seed; the fast circle: 0.946×
+    // with the 80 mm/s reach and 0.943× with 50 mm/s (no lag: the line's spread widens to its
+    // misses).
     let clean = mean("clean", "evidential_temporal") / mean("clean", "evidential");
-    assert!(clean <= 0.90, "clean: {clean}");
+    assert!(clean <= 0.92, "clean: {clean}");
     for seed in 1..=5 {
         let per_frame = method("clean", seed, "evidential")["error"]["mean"].as_f64();
         let temporal = method("clean", seed, "evidential_temporal")["error"]["mean"].as_f64();
@@ -435,12 +457,13 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     }
     for variant in ["fast", "fast-v50"] {
         let r = mean(variant, "evidential_temporal") / mean(variant, "evidential");
-        assert!(r <= 0.955, "{variant}: {r}");
+        assert!(r <= 0.97, "{variant}: {r}");
     }
-    // Lost frames, predicted: 1.461 mm (evidential), 1.048 (continuous).
+    // Lost frames, predicted: 1.173 mm (evidential), 0.826 (continuous), 1.461 (filter).
     for (name, measured) in [
-        ("evidential_temporal", 1.461),
-        ("continuous_temporal", 1.048),
+        ("evidential_temporal", 1.173),
+        ("continuous_temporal", 0.826),
+        ("particle_filter", 1.461),
     ] {
         let lost = struck_mean("dropped", name);
         assert!(lost <= measured * 1.03, "dropped, {name}: {lost}");
