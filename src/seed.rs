@@ -9,6 +9,8 @@ pub enum ScenarioPart {
     Sample,
     /// The validation motion.
     Validation,
+    /// The calibration motion (`[calibration]`).
+    Calibration,
     /// The test motion of this index.
     Test(usize),
 }
@@ -30,6 +32,7 @@ pub fn for_part(master: u64, part: ScenarioPart) -> u64 {
     match part {
         ScenarioPart::Sample => derive(master, "sample"),
         ScenarioPart::Validation => derive(master, "validation"),
+        ScenarioPart::Calibration => derive(master, "calibration"),
         ScenarioPart::Test(k) => derive(master, &format!("test{k}")),
     }
 }

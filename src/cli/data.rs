@@ -86,8 +86,8 @@ pub struct SimulateArgs {
     #[arg(long)]
     scenario: Option<PathBuf>,
     /// Which of the scenario's motions: `sample` (the frames `run` trains on, after
-    /// `keep_every` and the adaptive samples), `validation` or `test` (`test1`, … for later test
-    /// motions; the clean frames, before the scenario's [[faults]]).
+    /// `keep_every` and the adaptive samples), `validation`, `calibration` or `test` (`test1`,
+    /// … for later test motions; the clean frames, before the scenario's [[faults]]).
     #[arg(long, default_value = "sample", requires = "scenario")]
     part: String,
     /// The sweep variant of the scenario file, by its full name (`paper-c`) or the part after
@@ -187,6 +187,12 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
                 .with_context(|| format!("scenario `{}` has no validation motion", s.name))?,
             ScenarioPart::Validation,
         ),
+        "calibration" => (
+            s.calibration
+                .clone()
+                .with_context(|| format!("scenario `{}` has no calibration motion", s.name))?,
+            ScenarioPart::Calibration,
+        ),
         test if test.starts_with("test") => {
             let index: usize = match &test[4..] {
                 "" => 0,
@@ -211,7 +217,7 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
             }
             (motion, ScenarioPart::Test(index))
         }
-        other => bail!("--part `{other}` must be sample, validation or test[N]"),
+        other => bail!("--part `{other}` must be sample, validation, calibration or test[N]"),
     };
     let seed = seed::for_part(s.seed, part);
     let threads = super::cores();

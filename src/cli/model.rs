@@ -314,6 +314,8 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         sample: sample.labelled(),
         validation: validation.as_ref().map(|(v, _)| v.labelled()),
         validation_times: validation.as_ref().map(|(_, t)| t.as_slice()),
+        calibration: None,
+        calibration_times: None,
         missing_penalty: dataset.workspace_diagonal(),
         provenance: Provenance::new(None, args.seed).with_workspace(dataset.manifest.workspace),
     };

@@ -121,8 +121,8 @@ fn mahalanobis(inverse: &[[f64; 2]; 2], e: [f64; 2], t: [f64; 2]) -> f64 {
 }
 
 impl Calibration {
-    /// Learns the calibration of `estimator` on `data`'s validation motion (tracked in order,
-    /// with its times); `None` without a validation motion.
+    /// Learns the calibration of `estimator` on `data`'s calibration motion, or else its
+    /// validation motion (tracked in order, with its times); `None` without either.
     ///
     /// # Errors
     /// The estimator's own errors on a validation frame.
@@ -131,13 +131,15 @@ impl Calibration {
         data: &TrainingSet,
         settings: &ConfidenceSettings,
     ) -> Result<Option<Self>, super::EstimatorError> {
-        let Some(validation) = &data.validation else {
-            return Ok(None);
+        let (validation, times) = match (&data.calibration, &data.validation) {
+            (Some(calibration), _) => (calibration, data.calibration_times),
+            (None, Some(validation)) => (validation, data.validation_times),
+            (None, None) => return Ok(None),
         };
         let mut motion = estimator.start_motion();
         let mut estimates = Vec::with_capacity(validation.rows.len());
         for (i, row) in validation.rows.iter().enumerate() {
-            let time = data.validation_times.and_then(|t| t.get(i).copied());
+            let time = times.and_then(|t| t.get(i).copied());
             estimates.push(motion.next(time.unwrap_or(i as f64), row)?);
         }
         let workspace = data.provenance.workspace.unwrap_or_else(|| {

@@ -343,6 +343,11 @@ pub struct TrainingSet<'a> {
     pub validation: Option<Labelled<'a>>,
     /// The validation frames' times (s), for what temporal methods learn there.
     pub validation_times: Option<&'a [f64]>,
+    /// A calibration motion for the regions and abstentions ([`Calibration`]); `None`: the
+    /// validation motion calibrates them.
+    pub calibration: Option<Labelled<'a>>,
+    /// The calibration frames' times (s).
+    pub calibration_times: Option<&'a [f64]>,
     /// The error a validation frame without an estimate counts as (mm): the workspace diagonal.
     pub missing_penalty: f64,
     /// Where the model comes from.
@@ -360,6 +365,8 @@ impl<'a> TrainingSet<'a> {
             sample,
             validation: None,
             validation_times: None,
+            calibration: None,
+            calibration_times: None,
             missing_penalty: bounding_diagonal(sample.poses),
             provenance: Provenance::new(None, 0),
         }

@@ -104,6 +104,24 @@ pub fn run(
         None => None,
     };
 
+    // The calibration motion, when the scenario has one apart from the validation motion.
+    let calibration = match &s.calibration {
+        Some(motion) => {
+            let seed = seed::for_part(master, ScenarioPart::Calibration);
+            let what = CALIBRATION_STAGE;
+            Some(labelled_motion(
+                scenario,
+                bench,
+                motion,
+                seed,
+                what,
+                progress,
+                &mut timings,
+            )?)
+        }
+        None => None,
+    };
+
     // The test frames: simulated and their features extracted once, for every method; then
     // the faults, if any, each test motion on its own stream.
     let plan = scenario.fault_plan();
@@ -154,6 +172,10 @@ pub fn run(
             .as_ref()
             .map(|(truth, _, rows)| Labelled { poses: truth, rows }),
         validation_times: validation.as_ref().map(|(_, times, _)| times.as_slice()),
+        calibration: calibration
+            .as_ref()
+            .map(|(truth, _, rows)| Labelled { poses: truth, rows }),
+        calibration_times: calibration.as_ref().map(|(_, times, _)| times.as_slice()),
         missing_penalty: missing_penalty(sim),
         provenance: Provenance::new(Some(s.name.clone()), master)
             .with_workspace(Some(sim.geometry.workspace)),
@@ -414,6 +436,13 @@ fn needs(scenario: &CheckedScenario) -> Vec<Need<'_>> {
             label: VALIDATION_STAGE.to_string(),
         });
     }
+    if let Some(motion) = &s.calibration {
+        needs.push(Need {
+            motion,
+            seed: seed::for_part(master, ScenarioPart::Calibration),
+            label: CALIBRATION_STAGE.to_string(),
+        });
+    }
     for (k, motion) in s.tests.iter().enumerate() {
         needs.push(Need {
             motion,
@@ -428,6 +457,8 @@ fn needs(scenario: &CheckedScenario) -> Vec<Need<'_>> {
 const SAMPLE_STAGE: &str = "sample";
 /// The stage name of the validation motion's simulation.
 const VALIDATION_STAGE: &str = "the validation motion";
+/// The stage name of the calibration motion's simulation.
+const CALIBRATION_STAGE: &str = "the calibration motion";
 
 /// The name of test motion `k` in records, progress and errors (`test0:lissajous`).
 fn test_label(k: usize, motion: &Motion) -> String {

@@ -176,7 +176,7 @@ fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> 
     let header = serde_json::json!({
         "method": method,
         "settings": method_settings,
-        // The shared fit is calibrated on the validation motion at these levels.
+        // The shared fit is calibrated (on the calibration or validation motion) at these levels.
         "confidence": settings.confidence,
         "features": data.feature_names,
         "config": data.feature_config,
@@ -187,6 +187,10 @@ fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> 
     if let Some(validation) = &data.validation {
         key.push(b'V');
         append_labelled(&mut key, validation);
+    }
+    if let Some(calibration) = &data.calibration {
+        key.push(b'C');
+        append_labelled(&mut key, calibration);
     }
     Some(key)
 }

@@ -103,6 +103,10 @@ pub struct Scenario {
     /// Validation motion: ranks the features for the fallback, learns the conflict threshold
     /// and tunes state counts. Default: a seeded random path, 10 s at 10 frames/s.
     pub validation: Option<Motion>,
+    /// Calibration motion: every method's regions and abstentions are calibrated on it
+    /// (split-conformal, so it should be a held-out motion of the tests' kind). Default: none,
+    /// the validation motion calibrates them.
+    pub calibration: Option<Motion>,
     /// Test motions: the reported errors are measured on them.
     pub tests: Vec<Motion>,
     /// Faults injected into every test motion (`[[faults]]`, applied in order; each test motion
@@ -157,6 +161,7 @@ impl Default for Scenario {
             sim: SimSettings::default(),
             sample: SampleSettings::default(),
             validation: Some(default_validation_motion()),
+            calibration: None,
             tests: vec![default_test_motion()],
             faults: Vec::new(),
             features: FeatureConfig::default(),
@@ -426,6 +431,10 @@ impl Scenario {
             .validation
             .as_ref()
             .map(|m| m.with_default_seed(seed::for_validation_path(self.seed)));
+        scenario.calibration = self
+            .calibration
+            .as_ref()
+            .map(|m| m.with_default_seed(seed::derive(self.seed, "calibration-path")));
         scenario.tests = self
             .tests
             .iter()
@@ -439,6 +448,12 @@ impl Scenario {
                     .validation
                     .iter()
                     .map(|m| ("[validation]".to_string(), m)),
+            )
+            .chain(
+                scenario
+                    .calibration
+                    .iter()
+                    .map(|m| ("[calibration]".to_string(), m)),
             )
             .chain((scenario.tests.iter().enumerate()).map(|(k, m)| (format!("[[tests]] {k}"), m)));
         for (what, motion) in motions {
