@@ -390,7 +390,10 @@ fn on_coarse_frames_the_past_does_not_hurt() {
             run.name()
         );
         let fitted = (output.estimators.iter())
-            .find_map(|e| (e.as_ref() as &dyn std::any::Any).downcast_ref::<TemporalEvidential>())
+            .find_map(|e| {
+                let inner = evitrack::estimator::underlying(e.as_ref());
+                (inner as &dyn std::any::Any).downcast_ref::<TemporalEvidential>()
+            })
             .unwrap();
         assert_eq!(fitted.velocity_frames(), 0, "{} seed {seed}", run.name());
         if seed == 1 {
