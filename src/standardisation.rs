@@ -3,6 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
+/// How many standard deviations from the mean a loaded sample may lie: fitted on n samples they
+/// lie within √n (at most 317 for the 100,000 an adaptive trajectory may hold).
+pub const MAX_STANDARDISED: f64 = 1e6;
+
 /// Per-feature centring and scaling fitted on the samples: `z = (x − mean) / scale`, the scale
 /// being the (population) standard deviation, or 1 for a feature constant on the samples.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,7 +35,8 @@ impl Standardisation {
             // Exactly constant rather than a tiny rounding std, which would blow it up.
             if hi > lo {
                 let var = column.map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
-                if var.sqrt() > 0.0 {
+                // A subnormal scale would overflow every standardised value.
+                if var.sqrt() >= f64::MIN_POSITIVE {
                     scales[d] = var.sqrt();
                 }
             }
@@ -67,6 +72,39 @@ impl Standardisation {
         }
         if let Some(d) = self.scales.iter().position(|&s| s <= 0.0) {
             return Err(format!("`{field}.scales[{d}]` is not positive"));
+        }
+        if let Some(d) = self.scales.iter().position(|&s| s < f64::MIN_POSITIVE) {
+            return Err(format!(
+                "`{field}.scales[{d}]` is {:e}, below the smallest normal number {:e}: every \
+                 standardised value would overflow",
+                self.scales[d],
+                f64::MIN_POSITIVE
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks that the loaded `rows` (the file's `rows_field`) lie within
+    /// [`MAX_STANDARDISED`] standard deviations of the means once standardised: a fitted file's
+    /// samples lie within √n of them, and values far beyond overflow the distances and kernels
+    /// computed from them. Call after [`Self::check`].
+    pub fn check_rows<R: AsRef<[f64]>>(
+        &self,
+        rows: &[R],
+        rows_field: &str,
+        field: &str,
+    ) -> Result<(), String> {
+        for (i, row) in rows.iter().enumerate() {
+            for (d, &x) in row.as_ref().iter().enumerate().take(self.means.len()) {
+                let z = self.apply(d, x);
+                if z.is_nan() || z.abs() > MAX_STANDARDISED {
+                    return Err(format!(
+                        "`{rows_field}[{i}][{d}]` is {z:e} standard deviations from \
+                         `{field}.means[{d}]` (at most {MAX_STANDARDISED:e}; a fitted file's \
+                         samples lie within √n): a mean, scale or sample value is corrupted"
+                    ));
+                }
+            }
         }
         Ok(())
     }

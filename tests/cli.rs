@@ -3,7 +3,9 @@
 use std::io::Write;
 use std::process::{Command, Output, Stdio};
 
+mod outputs;
 mod runs;
+mod shards;
 
 pub(crate) fn evitrack(args: &[&str], stdin: &str) -> Output {
     let mut child = Command::new(env!("CARGO_BIN_EXE_evitrack"))

@@ -131,3 +131,55 @@ fn the_ci_matrix_and_the_array_match_the_scripts() {
     assert!(array.contains("#SBATCH --array=0-2"));
     assert!(array.contains("SLURM_ARRAY_TASK_COUNT:-3"));
 }
+
+/// `submit.sh` sends `--check` to the merge, everything else to the array, and lets the merge
+/// run after any end of the array (a failed shard is then named, not waited for): checked with
+/// an `sbatch` stand-in that logs its arguments.
+#[test]
+fn submit_sends_check_to_the_merge_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("sbatch.log");
+    let fake = dir.path().join("sbatch");
+    std::fs::write(
+        &fake,
+        format!("#!/bin/sh\necho \"$*\" >> '{}'\necho 42\n", log.display()),
+    )
+    .unwrap();
+    let chmod = Command::new("chmod").arg("+x").arg(&fake).status().unwrap();
+    assert!(chmod.success());
+    let path = format!(
+        "{}:{}",
+        dir.path().display(),
+        std::env::var("PATH").unwrap()
+    );
+    let out = script("submit.sh", dir.path(), &[("PATH", path.as_str())])
+        .args(["--seeds", "10", "--check"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let calls = std::fs::read_to_string(&log).unwrap();
+    let lines: Vec<&str> = calls.lines().collect();
+    assert_eq!(lines.len(), 2, "{calls}");
+    assert!(lines[0].ends_with("sweep-array.sh --seeds 10"), "{calls}");
+    assert!(lines[0].contains("--array=0-2"), "{calls}");
+    assert!(lines[1].contains("--dependency=afterany:42"), "{calls}");
+    assert!(lines[1].ends_with("merge.sh --check"), "{calls}");
+}
+
+/// A shard refuses `--check` before running anything: it would judge a slice of the sweep.
+#[test]
+fn a_shard_refuses_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let env = [("SHARD", "0"), ("SHARDS", "3")];
+    let out = script("sweep-array.sh", dir.path(), &env)
+        .arg("--check")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("belongs on the merge"));
+    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
+}

@@ -14,7 +14,8 @@
 #   SWEEP_OUT   the output folder shared by all tasks (default: out/sweep-sharded)
 #   EVITRACK    the binary (default: evitrack on PATH, else target/release/evitrack)
 #   JOBS        variants at once (default: $SLURM_CPUS_PER_TASK, else evitrack's default)
-# Arguments after the script name go to `evitrack sweep` (e.g. --seeds 10, --check).
+# Arguments after the script name go to `evitrack sweep` (e.g. --seeds 10); `--check` is
+# refused here: it belongs on the merge (merge.sh --check), which sees every run.
 # The scheduler counts from 0, `--shard` from 1: task i runs shard i+1.
 #
 #SBATCH --job-name=evitrack-sweep
@@ -35,6 +36,13 @@ if ! [[ $shard =~ ^[0-9]+$ && $shards =~ ^[0-9]+$ ]] || ((shard >= shards)); the
     echo "sweep-array.sh: task $shard of $shards: need 0 <= SHARD < SHARDS" >&2
     exit 2
 fi
+for arg in "$@"; do
+    if [[ $arg == --check ]]; then
+        echo "sweep-array.sh: --check belongs on the merge (merge.sh --check, or submit.sh" \
+            "--check, which passes it there): a shard holds only some of the runs" >&2
+        exit 2
+    fi
+done
 jobs=()
 if [[ -n ${JOBS:-${SLURM_CPUS_PER_TASK:-}} ]]; then
     jobs=(--jobs "${JOBS:-$SLURM_CPUS_PER_TASK}")

@@ -1,6 +1,7 @@
 //! The `evitrack` command line: one room per command group, shared helpers here.
 
 mod data;
+mod merge;
 mod model;
 mod runs;
 mod sweep;
@@ -35,7 +36,7 @@ enum Command {
     /// CSV/JSON and plots; `--check` fails when a variant misses its expectations.
     Sweep(sweep::SweepArgs),
     /// Merge the JSON results of sweep shards (`sweep --shard i/n`) into one table and report.
-    Merge(sweep::MergeArgs),
+    Merge(merge::MergeArgs),
     /// Combine belief functions given as JSON and print the result as JSON on stdout.
     ///
     /// Input: {"frame": N, "rule": "dempster"|"conjunctive", "mass_functions":
@@ -90,7 +91,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Combine(args) => data::combine(&args),
         Command::Run(args) => runs::run(&args),
         Command::Sweep(args) => sweep::sweep(&args),
-        Command::Merge(args) => sweep::merge(&args),
+        Command::Merge(args) => merge::merge(&args),
         Command::Simulate(args) => data::simulate(&args),
         Command::Render(args) => data::render(&args),
         Command::Features(args) => data::features(&args),

@@ -1,5 +1,5 @@
-//! `sweep` and `merge`: every variant of scenario files, each run's files written as soon as it
-//! finishes, a killed sweep resumed, shards merged in the sweep's order.
+//! `sweep`: every variant of scenario files, each run's files written as soon as it finishes, a
+//! killed sweep resumed; `merge` (in [`super::merge`]) puts its shards back together.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -11,7 +11,7 @@ use super::ensure_writable;
 use super::runs::StageBars;
 use super::tables::{evidential_of, print_tables, seed_tables, states_text};
 use evitrack::experiment::{self, Workbench};
-use evitrack::report::{self, write_run, RunSummary};
+use evitrack::report::{self, finite, write_run, RunSummary};
 use evitrack::report::{Comparison, SeedReport};
 use evitrack::scenario::{CheckedScenario, ScenarioSet, SeedList};
 
@@ -19,22 +19,35 @@ fn parse_seeds(text: &str) -> Result<SeedList, String> {
     SeedList::parse(text)
 }
 
+/// `--jobs`: at least one thread.
+fn parse_jobs(text: &str) -> Result<usize, String> {
+    match text.trim().parse::<usize>() {
+        Ok(0) => Err("0 jobs would run nothing: give at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(format!("`{text}`: {e}")),
+    }
+}
+
 /// What `sweep.json` holds: every finished run (in the sweep's order), the comparisons asked
 /// for, and the report across seeds. While a sweep runs, and after it was killed or a run failed,
 /// `complete` is false and `pending` names the runs without results.
 #[derive(serde::Serialize, serde::Deserialize)]
-struct SweepFile {
+pub(super) struct SweepFile {
     #[serde(default = "finished")]
-    complete: bool,
+    pub(super) complete: bool,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pending: Vec<String>,
+    pub(super) pending: Vec<String>,
     /// The slice this file holds, `[i, n]` zero-based, when `--shard` ran: run `k` of shard `i`
     /// is run `k·n + i` of the sweep, which `merge` puts back in order.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    shard: Option<[usize; 2]>,
-    runs: Vec<RunSummary>,
-    comparisons: Vec<Comparison>,
-    across_seeds: SeedReport,
+    pub(super) shard: Option<[usize; 2]>,
+    /// Which sweep a shard belongs to ([`sweep_identity`]), so that `merge` refuses shards of
+    /// different sweeps; only in shard files.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(super) sweep: Option<String>,
+    pub(super) runs: Vec<RunSummary>,
+    pub(super) comparisons: Vec<Comparison>,
+    pub(super) across_seeds: SeedReport,
 }
 
 fn finished() -> bool {
@@ -42,12 +55,17 @@ fn finished() -> bool {
 }
 
 impl SweepFile {
-    fn new(runs: Vec<RunSummary>, pending: Vec<String>, comparisons: &[Comparison]) -> Self {
+    pub(super) fn new(
+        runs: Vec<RunSummary>,
+        pending: Vec<String>,
+        comparisons: &[Comparison],
+    ) -> Self {
         Self {
             complete: pending.is_empty(),
             across_seeds: SeedReport::new(&runs, comparisons),
             pending,
             shard: None,
+            sweep: None,
             runs,
             comparisons: comparisons.to_vec(),
         }
@@ -87,7 +105,7 @@ pub struct SweepArgs {
     /// Threads: variants run at once (the longest first); with 2 or more, each run also
     /// simulates its motions side by side, rendering beside the physics (default: the number of
     /// cores). Results are the same whatever the count.
-    #[arg(long)]
+    #[arg(long, value_parser = parse_jobs)]
     jobs: Option<usize>,
     /// Compare against each variant's expectations (on its own seed); exit 1 with a list of what
     /// regressed.
@@ -111,19 +129,6 @@ pub struct SweepArgs {
     /// files and seeds write byte-identical folders).
     #[arg(long)]
     timings: bool,
-}
-
-#[derive(Debug, Args)]
-pub struct MergeArgs {
-    /// Shard result files (`sweep-shard-*.json`) written by `sweep --shard`.
-    #[arg(required = true)]
-    shards: Vec<PathBuf>,
-    /// Output folder for the merged table, CSV, JSON and plots.
-    #[arg(long)]
-    out: PathBuf,
-    /// Compare against the expectations; exit 1 with a list of what regressed.
-    #[arg(long)]
-    check: bool,
 }
 
 /// Parses `i/n` (1-based) into a zero-based slice index and the slice count.
@@ -161,6 +166,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
         .collect();
     let seeded = runs.len() > variants.len();
     let total = runs.len();
+    let identity = super::merge::sweep_identity(&runs)?;
     let shard = args.shard.as_deref().map(parse_shard).transpose()?;
     if let Some((i, n)) = shard {
         runs = runs
@@ -218,6 +224,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
         let runs = state.summaries.iter().flatten().cloned().collect();
         let mut file = SweepFile::new(runs, pending, &comparisons);
         file.shard = shard.map(|(i, n)| [i, n]);
+        file.sweep = shard.map(|_| identity.clone());
         file
     };
     let state = SweepState {
@@ -279,7 +286,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
 }
 
 /// Prints the table, writes JSON, CSV and plots of a set of run summaries.
-fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<()> {
+pub(super) fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let all_runs = file.runs.as_slice();
     // Tables and plots show each variant's first run; with several seeds per variant, the
@@ -338,9 +345,10 @@ fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<(
         "aurc_clean",
         "aurc_corrupted",
     ])?;
-    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     for s in all_runs {
         for m in &s.methods {
+            let what = format!("sweep.csv, {} seed {} {}", s.scenario, s.seed, m.method);
+            let num = |v: Option<f64>| finite::cell(&what, v);
             let evidential = evidential_of(s, m);
             let states = states_text(evidential, " ");
             let f = m.faults.as_ref();
@@ -360,37 +368,40 @@ fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<(
                 s.samples.to_string(),
                 states,
                 evidential.map_or(String::new(), |e| e.constructor.clone()),
-                evidential.map_or(String::new(), |e| e.conflict_threshold.value().to_string()),
-                num(m.error.map(|e| e.mean)),
-                num(m.error.map(|e| e.median)),
-                num(m.error.map(|e| e.rms)),
-                num(m.error.map(|e| e.max)),
-                num(s.paper_error.filter(|_| evidential.is_some())),
+                match evidential {
+                    Some(e) => finite::level(&what, e.conflict_threshold.value())?,
+                    None => String::new(),
+                },
+                num(m.error.map(|e| e.mean))?,
+                num(m.error.map(|e| e.median))?,
+                num(m.error.map(|e| e.rms))?,
+                num(m.error.map(|e| e.max))?,
+                num(s.paper_error.filter(|_| evidential.is_some()))?,
                 s.frames.to_string(),
                 m.frames_without_estimate.to_string(),
                 m.frames_with_missing_features.to_string(),
                 m.frames_with_features_left_out.to_string(),
                 m.frames_fallback.to_string(),
-                num(expected),
+                num(expected)?,
                 f.map_or(String::new(), |f| f.corrupted_frames.to_string()),
-                num(f.and_then(|f| f.error_clean).map(|e| e.mean)),
-                num(f.and_then(|f| f.error_corrupted).map(|e| e.mean)),
+                num(f.and_then(|f| f.error_clean).map(|e| e.mean))?,
+                num(f.and_then(|f| f.error_corrupted).map(|e| e.mean))?,
                 f.map_or(String::new(), |f| f.corrupted_without_estimate.to_string()),
-                num(f.and_then(|f| f.detection_auc)),
-                num(f.and_then(|f| f.left_out_precision)),
-                num(f.and_then(|f| f.left_out_recall)),
-                num(m.region.as_ref().map(|r| r.coverage)),
-                num(m.region.as_ref().map(|r| r.mean_area)),
-                num(c.and_then(|c| c.coverage_clean)),
-                num(c.and_then(|c| c.coverage_corrupted)),
+                num(f.and_then(|f| f.detection_auc))?,
+                num(f.and_then(|f| f.left_out_precision))?,
+                num(f.and_then(|f| f.left_out_recall))?,
+                num(m.region.as_ref().map(|r| r.coverage))?,
+                num(m.region.as_ref().map(|r| r.mean_area))?,
+                num(c.and_then(|c| c.coverage_clean))?,
+                num(c.and_then(|c| c.coverage_corrupted))?,
                 c.map_or(String::new(), |c| c.abstained_clean.to_string()),
                 c.map_or(String::new(), |c| c.abstained_corrupted.to_string()),
-                num(c.map(|c| c.all.aurc)),
-                num(c.map(|c| c.all.oracle_aurc)),
-                num(c.map(|c| c.all.error_at_80)),
-                num(c.map(|c| c.all.error_at_95)),
-                num(c.and_then(|c| c.clean.as_ref()).map(|r| r.aurc)),
-                num(c.and_then(|c| c.corrupted.as_ref()).map(|r| r.aurc)),
+                num(c.map(|c| c.all.aurc))?,
+                num(c.map(|c| c.all.oracle_aurc))?,
+                num(c.map(|c| c.all.error_at_80))?,
+                num(c.map(|c| c.all.error_at_95))?,
+                num(c.and_then(|c| c.clean.as_ref()).map(|r| r.aurc))?,
+                num(c.and_then(|c| c.corrupted.as_ref()).map(|r| r.aurc))?,
             ])?;
         }
     }
@@ -468,7 +479,11 @@ fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<(
 
 /// Reports failures and regressions. Exit status 2 when a variant failed to run or write, else
 /// 1 when `check` finds a regression, else 0.
-fn finish_sweep(summaries: &[RunSummary], failures: &[String], check: bool) -> Result<ExitCode> {
+pub(super) fn finish_sweep(
+    summaries: &[RunSummary],
+    failures: &[String],
+    check: bool,
+) -> Result<ExitCode> {
     for failure in failures {
         eprintln!("failed: {failure}");
     }
@@ -494,54 +509,4 @@ fn finish_sweep(summaries: &[RunSummary], failures: &[String], check: bool) -> R
     } else {
         ExitCode::from(2)
     })
-}
-
-pub fn merge(args: &MergeArgs) -> Result<ExitCode> {
-    // (position in the sweep, summary): shards interleave, run k of shard i of n being run
-    // k·n + i; files without a slice keep the order they are given in, after the shards.
-    let mut runs: Vec<((usize, usize), RunSummary)> = Vec::new();
-    let mut comparisons: Vec<Comparison> = Vec::new();
-    for (f, path) in args.shards.iter().enumerate() {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        let shard: SweepFile = serde_json::from_str(&text)
-            .with_context(|| format!("{} is not a sweep result file", path.display()))?;
-        if !shard.complete {
-            bail!(
-                "{} is incomplete ({} runs without results: {}): run its sweep again to finish it",
-                path.display(),
-                shard.pending.len(),
-                shard.pending.join(", ")
-            );
-        }
-        for (k, run) in shard.runs.into_iter().enumerate() {
-            let position = match shard.shard {
-                Some([i, n]) => (0, k * n + i),
-                None => (1 + f, k),
-            };
-            runs.push((position, run));
-        }
-        for c in shard.comparisons {
-            if !comparisons.contains(&c) {
-                comparisons.push(c);
-            }
-        }
-    }
-    runs.sort_by_key(|(position, _)| *position);
-    let summaries: Vec<RunSummary> = runs.into_iter().map(|(_, s)| s).collect();
-    let mut seen = std::collections::HashSet::new();
-    if let Some(dup) = summaries
-        .iter()
-        .find(|s| !seen.insert((s.scenario.clone(), s.seed)))
-    {
-        bail!(
-            "variant `{}` with seed {} appears in two shard files: merge each shard once",
-            dup.scenario,
-            dup.seed
-        );
-    }
-    ensure_writable(&args.out)?;
-    let file = SweepFile::new(summaries, Vec::new(), &comparisons);
-    write_sweep_report(&args.out, "sweep.json", &file)?;
-    finish_sweep(&file.runs, &[], args.check)
 }

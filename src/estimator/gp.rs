@@ -19,7 +19,9 @@ use std::path::Path;
 use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
 
-use super::inputs::{check_header_features, check_training, frame_values, training_header};
+use super::inputs::{
+    check_header_features, check_training, frame_values, scaled_norm, training_header,
+};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -283,6 +285,10 @@ impl Gp {
         }
         check_finite("log_marginal_likelihood", &[file.log_marginal_likelihood])?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
+        (file.standardisation)
+            .check_rows(&file.sample_features, "sample_features", "standardisation")
+            .and_then(|()| (file.output).check_rows(&file.sample_poses, "sample_poses", "output"))
+            .map_err(corrupted)?;
         Ok(Self::factor(file).map_err(corrupted)?)
     }
 
@@ -331,10 +337,18 @@ impl Gp {
             means[0] + scales[0] * mean[0],
             means[1] + scales[1] * mean[1],
         ];
+        // A frame far beyond the samples overflows the squares: the distance itself.
+        let nearest = if nearest.is_finite() {
+            nearest.sqrt()
+        } else {
+            (f.inputs.chunks_exact(values.len()))
+                .map(|row| scaled_norm(row.iter().zip(&query).map(|(r, q)| q - r)))
+                .fold(f64::INFINITY, f64::min)
+        };
         (
             pose,
             std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
-            nearest.sqrt(),
+            nearest,
         )
     }
 }

@@ -153,3 +153,29 @@ impl From<ModelFileError> for EstimatorError {
         }
     }
 }
+
+/// The Euclidean norm of `terms` without overflow in the squares: each term is divided by the
+/// largest first; +∞ only when a term itself is. Methods call it only where their plain sum of
+/// squares overflowed, so ordinary frames keep their bits.
+pub(crate) fn scaled_norm(terms: impl Iterator<Item = f64> + Clone) -> f64 {
+    let largest = terms.clone().fold(0.0, |m: f64, t| m.max(t.abs()));
+    if largest == 0.0 || !largest.is_finite() {
+        return largest;
+    }
+    largest * terms.map(|t| (t / largest).powi(2)).sum::<f64>().sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::scaled_norm;
+
+    #[test]
+    fn the_scaled_norm_survives_squares_beyond_the_double_range() {
+        let terms = [3e200, -4e200];
+        assert!(terms.iter().map(|t| t * t).sum::<f64>().is_infinite());
+        let norm = scaled_norm(terms.iter().copied());
+        assert!((norm / 5e200 - 1.0).abs() < 1e-15, "{norm}");
+        assert_eq!(scaled_norm([0.0, 0.0].into_iter()), 0.0);
+        assert_eq!(scaled_norm([1.0, f64::INFINITY].into_iter()), f64::INFINITY);
+    }
+}

@@ -11,7 +11,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::inputs::{check_header_features, check_training, frame_values, training_header};
+use super::inputs::{
+    check_header_features, check_training, frame_values, scaled_norm, training_header,
+};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -166,7 +168,8 @@ impl Knn {
             }
         }
         let k = self.file.settings.k;
-        let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
+        // (squared distance, distance when the square overflowed, sample index).
+        let mut best: Vec<(f64, f64, usize)> = Vec::with_capacity(k + 1);
         for (i, row) in self.inputs.chunks_exact(dim).enumerate() {
             let d2: f64 = row
                 .iter()
@@ -174,15 +177,28 @@ impl Knn {
                 .zip(&mask)
                 .map(|((r, q), m)| m * (q - r) * (q - r))
                 .sum();
+            // A frame far beyond the samples (a fault of 1e200) overflows the square: rank by
+            // the distance itself, after every finite square.
+            let key = if d2.is_finite() {
+                (d2, 0.0)
+            } else {
+                let terms =
+                    (row.iter().zip(&query).zip(&mask))
+                        .map(|((r, q), m)| if *m > 0.0 { q - r } else { 0.0 });
+                (f64::INFINITY, scaled_norm(terms))
+            };
             // Samples come in index order, so a tie never displaces an earlier sample.
-            if best.len() == k && d2 >= best[k - 1].0 {
+            if best.len() == k && key >= (best[k - 1].0, best[k - 1].1) {
                 continue;
             }
-            let at = best.partition_point(|b| b.0 <= d2);
-            best.insert(at, (d2, i));
+            let at = best.partition_point(|b| (b.0, b.1) <= key);
+            best.insert(at, (key.0, key.1, i));
             best.truncate(k);
         }
-        Ok(best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect())
+        Ok(best
+            .into_iter()
+            .map(|(d2, far, i)| (i, if d2.is_finite() { d2.sqrt() } else { far }))
+            .collect())
     }
 
     /// Reads a model file's text, checking the header, the settings, the standardisation and
@@ -201,6 +217,9 @@ impl Knn {
             .check(dim, "standardisation")
             .map_err(corrupted)?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
+        (file.standardisation)
+            .check_rows(&file.sample_features, "sample_features", "standardisation")
+            .map_err(corrupted)?;
         file.header
             .provenance
             .check_poses("sample_poses", &file.sample_poses)?;

@@ -78,8 +78,10 @@ pub fn write_run(
     put("frames.csv", &frames)?;
 
     let mut samples = String::from("x,y,added_in_round\n");
-    for (pose, round) in output.samples.iter().zip(&output.sample_rounds) {
-        samples.push_str(&format!("{},{},{round}\n", pose[0], pose[1]));
+    for (i, (pose, round)) in output.samples.iter().zip(&output.sample_rounds).enumerate() {
+        let [x, y] =
+            [0, 1].map(|c| super::finite::number(&format!("samples.csv, row {i}"), pose[c]));
+        samples.push_str(&format!("{},{},{round}\n", x?, y?));
     }
     put("samples.csv", samples.as_bytes())?;
 

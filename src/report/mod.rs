@@ -1,19 +1,22 @@
 //! Reporting: error statistics, per-frame records and run summaries, the files of a run,
 //! plain-text tables and PNG plots.
 
+mod auc;
 mod confidence;
 mod files;
+pub mod finite;
 mod plot;
 mod records;
 mod seeds;
 mod table;
 
+pub use auc::detection_auc;
 pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
 pub use files::{write_run, RunOutput, RESULTS_FILE, SCENARIO_FILE};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
-    detection_auc, write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary,
-    MethodTimings, RunSummary, Timings,
+    write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,
+    RunSummary, Timings,
 };
 pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
 pub use table::Table;
@@ -40,6 +43,17 @@ pub enum ReportError {
         /// Why.
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// A number no output file may hold (NaN, or an infinity the README does not document).
+    #[error("{what} is {value}, which no output file may hold (a bug: please report it)")]
+    NonFinite {
+        /// Which number, where.
+        what: String,
+        /// The number.
+        value: f64,
+    },
+    /// A CSV file could not be written.
+    #[error("writing CSV: {0}")]
+    Csv(#[from] csv::Error),
     /// There is nothing to plot.
     #[error("nothing to plot in {path}: {what}")]
     Empty {

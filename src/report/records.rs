@@ -3,8 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::auc::detection_auc;
 use super::confidence::{ConfidenceSummary, RegionSummary};
 use super::ErrorStats;
+use super::{finite, ReportError};
 use crate::estimator::{EstimateFlags, PoseEstimate};
 use crate::evidence::ConflictLevel;
 use crate::faults::FrameFaults;
@@ -100,12 +102,17 @@ impl FrameRecord {
 /// Writes frame records as CSV (the `frames.csv` of a run, and what `track` prints): one row per
 /// frame and method, the combined group as feature names joined by `+`, empty cells for missing
 /// values; the last two columns are the ground truth of injected faults (the faults that struck,
-/// the features they changed, or `frame` for a dropped frame), empty without faults.
+/// the features they changed, or `frame` for a dropped frame), empty without faults. Numbers go
+/// through [`finite`]: `conflict_level` and `detection_score` may be `inf`, nothing is NaN.
+///
+/// # Errors
+/// [`ReportError::NonFinite`] naming the row and column of a number no file may hold;
+/// [`ReportError::Csv`] when writing fails.
 pub fn write_frames_csv<W: std::io::Write>(
     writer: W,
     records: &[FrameRecord],
     names: &[String],
-) -> Result<(), csv::Error> {
+) -> Result<(), ReportError> {
     let mut csv = csv::Writer::from_writer(writer);
     csv.write_record([
         "method",
@@ -127,7 +134,6 @@ pub fn write_frames_csv<W: std::io::Write>(
         "region_area",
         "region_covers",
     ])?;
-    let num = |v: Option<f64>| v.map(|v| v.to_string()).unwrap_or_default();
     let joined = |list: &[usize]| {
         list.iter()
             .map(|&g| names[g].as_str())
@@ -135,6 +141,13 @@ pub fn write_frames_csv<W: std::io::Write>(
             .join("+")
     };
     for r in records {
+        let at = |column: &str| {
+            format!(
+                "frames.csv, {} {} frame {}: {column}",
+                r.method, r.motion, r.frame
+            )
+        };
+        let num = |column: &str, v: Option<f64>| finite::cell(&at(column), v);
         let group = r.group.as_deref().map(joined).unwrap_or_default();
         let (faults, changed) = match &r.faults {
             Some(f) if f.dropped => (f.faults.join("+"), "frame".to_string()),
@@ -145,24 +158,24 @@ pub fn write_frames_csv<W: std::io::Write>(
             r.method.clone(),
             r.motion.clone(),
             r.frame.to_string(),
-            r.t.to_string(),
-            num(r.truth.map(|p| p[0])),
-            num(r.truth.map(|p| p[1])),
-            num(r.estimate.map(|p| p[0])),
-            num(r.estimate.map(|p| p[1])),
-            num(r.error),
+            finite::number(&at("t"), r.t)?,
+            num("true_x", r.truth.map(|p| p[0]))?,
+            num("true_y", r.truth.map(|p| p[1]))?,
+            num("est_x", r.estimate.map(|p| p[0]))?,
+            num("est_y", r.estimate.map(|p| p[1]))?,
+            num("error", r.error)?,
             group,
-            num(r.conflict_level),
-            num(r.uncertainty_radius),
+            finite::level_cell(&at("conflict_level"), r.conflict_level)?,
+            num("uncertainty_radius", r.uncertainty_radius)?,
             r.flags.clone(),
-            num(r.detection_score),
+            finite::level_cell(&at("detection_score"), r.detection_score)?,
             faults,
             changed,
-            num(r.region_area),
+            num("region_area", r.region_area)?,
             r.region_covers.map(|c| c.to_string()).unwrap_or_default(),
         ])?;
     }
-    csv.flush()?;
+    csv.flush().map_err(csv::Error::from)?;
     Ok(())
 }
 
@@ -314,38 +327,6 @@ impl FaultSummary {
             left_out_recall: share(hits, changed_present),
         })
     }
-}
-
-/// Area under the ROC curve of the records' detection scores against "corrupted" (ties count
-/// one half; a missing score is +∞); `None` without any score or without both classes.
-pub fn detection_auc(records: &[FrameRecord]) -> Option<f64> {
-    if records.iter().all(|r| r.detection_score.is_none()) {
-        return None;
-    }
-    let score = |r: &FrameRecord| r.detection_score.unwrap_or(f64::INFINITY);
-    let mut scored: Vec<(f64, bool)> = records.iter().map(|r| (score(r), r.corrupted())).collect();
-    let positives = scored.iter().filter(|s| s.1).count();
-    let negatives = scored.len() - positives;
-    if positives == 0 || negatives == 0 {
-        return None;
-    }
-    // Mann–Whitney: walk the scores in order, tied runs sharing their ranks.
-    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut wins = 0.0;
-    let mut negatives_below = 0usize;
-    let mut i = 0;
-    while i < scored.len() {
-        let j = i + scored[i..]
-            .iter()
-            .take_while(|s| s.0 == scored[i].0)
-            .count();
-        let tied_neg = scored[i..j].iter().filter(|s| !s.1).count();
-        let tied_pos = (j - i) - tied_neg;
-        wins += tied_pos as f64 * (negatives_below as f64 + 0.5 * tied_neg as f64);
-        negatives_below += tied_neg;
-        i = j;
-    }
-    Some(wins / (positives * negatives) as f64)
 }
 
 /// The evidential model of a run, in brief.

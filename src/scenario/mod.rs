@@ -321,6 +321,9 @@ impl Scenario {
                 self.name
             )));
         }
+        if self.seed > MAX_SEED {
+            return Err(invalid(seed_too_large(self.seed)));
+        }
         let rig = self
             .sim
             .check()
@@ -538,6 +541,18 @@ impl CheckedScenario {
         }
         .check()
     }
+}
+
+/// The largest master seed: a run writes its seed into `scenario.toml`, and TOML integers are
+/// signed 64-bit.
+pub const MAX_SEED: u64 = i64::MAX as u64;
+
+/// Why `seed` cannot be a master seed.
+pub(crate) fn seed_too_large(seed: u64) -> String {
+    format!(
+        "seed {seed} is above {MAX_SEED} (2^63 − 1), the largest a scenario file (TOML) can hold: \
+         use a smaller seed"
+    )
 }
 
 mod expect;

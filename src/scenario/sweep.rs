@@ -67,6 +67,13 @@ impl SeedList {
             SeedList::Count(n) if *n > 10_000 => Err(format!("seeds: {n} is more than 10000")),
             SeedList::Count(_) => Ok(()),
             SeedList::List(list) if list.is_empty() => Err("seeds: the list is empty".into()),
+            SeedList::List(list) if list.iter().any(|&s| s > super::MAX_SEED) => {
+                let seed = list.iter().find(|&&s| s > super::MAX_SEED).copied();
+                Err(format!(
+                    "seeds: {}",
+                    super::seed_too_large(seed.unwrap_or(0))
+                ))
+            }
             SeedList::List(list) => match list
                 .iter()
                 .enumerate()
@@ -282,6 +289,12 @@ impl ScenarioSet {
                         return Err(variant_error("two variants have this name".into()));
                     }
                     let mut value = toml::Value::Table(table.clone());
+                    if spec.set.contains_key("name") {
+                        return Err(variant_error(
+                            "`name` cannot be set: a variant is named `<scenario>-<variant>`"
+                                .into(),
+                        ));
+                    }
                     for (path, replacement) in &spec.set {
                         set_path(&mut value, path, replacement.clone()).map_err(variant_error)?;
                     }
@@ -412,6 +425,14 @@ pub(super) fn set_path(
     let keys: Vec<&str> = path.split('.').collect();
     if keys.iter().any(|k| k.is_empty()) {
         return Err(format!("`{path}` is not a dotted path like `model.states`"));
+    }
+    // The sweep section is read once per file, before any variant exists: a variant's value
+    // there would be dropped without a word.
+    if keys[0] == "sweep" {
+        return Err(format!(
+            "`{path}` is a setting of the sweep itself, which a variant cannot change: set it in \
+             the file's [sweep] section"
+        ));
     }
     let mut node = root;
     for (depth, key) in keys.iter().enumerate() {

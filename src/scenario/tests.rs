@@ -263,3 +263,53 @@ fn the_temporal_trackers_refuse_splitting_through_their_registry_checks() {
         assert!(ScenarioSet::parse(&fine, "s.toml").is_ok(), "{fine}");
     }
 }
+
+#[test]
+fn a_variant_cannot_set_the_sweep_or_its_name() {
+    for (set, needle) in [
+        ("\"sweep.seeds\" = 5", "[sweep] section"),
+        (
+            "\"sweep.grid\" = { \"model.states\" = [2, 3] }",
+            "[sweep] section",
+        ),
+        ("name = \"other\"", "`name` cannot be set"),
+    ] {
+        let text = format!("{BASE}\n[[sweep.variant]]\nname = \"v\"\nset = {{ {set} }}\n");
+        let error = ScenarioSet::parse(&text, "t.toml").unwrap_err().to_string();
+        assert!(
+            error.contains("`v`") && error.contains(needle),
+            "{set}: {error}"
+        );
+    }
+    // Through a grid too.
+    let text = format!("{BASE}\n[sweep.grid]\n\"sweep.seeds\" = [2, 3]\n");
+    let error = ScenarioSet::parse(&text, "t.toml").unwrap_err().to_string();
+    assert!(error.contains("[sweep] section"), "{error}");
+}
+
+#[test]
+fn seeds_a_scenario_file_cannot_hold_are_refused() {
+    let set = ScenarioSet::parse(BASE, "t.toml").unwrap();
+    let largest = set.base.with_seed(MAX_SEED).unwrap();
+    // The largest seed reads back from the TOML a run writes.
+    let again = ScenarioSet::parse(&largest.to_toml().unwrap(), "again.toml").unwrap();
+    assert_eq!(again.base.seed, MAX_SEED);
+    let error = set.base.with_seed(MAX_SEED + 1).unwrap_err().to_string();
+    assert!(
+        error.contains("9223372036854775808") && error.contains("2^63"),
+        "{error}"
+    );
+    let error = SeedList::parse(&format!("1,{}", u64::MAX)).unwrap_err();
+    assert!(error.contains("2^63"), "{error}");
+    // A count running past the largest seed is refused when the runs are made.
+    let near = ScenarioSet::parse(
+        &BASE.replace("seed = 3", &format!("seed = {MAX_SEED}")),
+        "t",
+    )
+    .unwrap();
+    let error = near
+        .seeded(Some(&SeedList::Count(2)))
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("2^63"), "{error}");
+}

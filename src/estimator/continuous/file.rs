@@ -112,6 +112,20 @@ impl Continuous {
             .collect();
         check_finite("hyperparameters[].log_marginal_likelihood", &likelihoods)?;
         check_samples(&file.sample_poses, &file.sample_features, dim)?;
+        (file.feature_standardisation)
+            .check_rows(
+                &file.sample_features,
+                "sample_features",
+                "feature_standardisation",
+            )
+            .and_then(|()| {
+                (file.pose_standardisation).check_rows(
+                    &file.sample_poses,
+                    "sample_poses",
+                    "pose_standardisation",
+                )
+            })
+            .map_err(corrupted)?;
         let surrogate = Surrogate::new(
             file.pose_standardisation.clone(),
             file.feature_standardisation.clone(),
