@@ -163,3 +163,54 @@ fn the_calibration_rides_in_the_model_file_and_is_checked() {
         .unwrap_err()
         .contains("calibration.floor"));
 }
+
+#[test]
+fn a_calibration_motion_replaces_the_validation_motion() {
+    use crate::estimator::{EstimatorSettings, Labelled, Method, TrainingSet};
+    // k-NN on the pose itself as its two features: its error is the features' distortion.
+    let poses: Vec<[f64; 2]> = (0..100)
+        .map(|i| [f64::from(i % 10), f64::from(i / 10)])
+        .collect();
+    let rows_of = |shift: f64| -> Vec<Vec<Option<f64>>> {
+        (poses.iter().enumerate())
+            .map(|(i, p)| {
+                let wobble = if i % 2 == 0 { shift } else { -shift };
+                vec![Some(p[0] + wobble), Some(p[1] - wobble)]
+            })
+            .collect()
+    };
+    let (sample, close, far) = (rows_of(0.0), rows_of(0.05), rows_of(0.4));
+    let names = vec!["x".to_string(), "y".to_string()];
+    let labelled = |rows| Labelled {
+        poses: &poses,
+        rows,
+    };
+    let training = TrainingSet::new(&names, labelled(&sample));
+    let settings = EstimatorSettings::default();
+    let knn = Method::KNN.fit(&settings, &training).unwrap();
+    let learn = |data: &TrainingSet| {
+        Calibration::learn(knn.as_ref(), data, &ConfidenceSettings::default())
+            .unwrap()
+            .expect("a motion to calibrate on")
+    };
+    let validation_only = TrainingSet {
+        validation: Some(labelled(&close)),
+        ..training.clone()
+    };
+    let both = TrainingSet {
+        calibration: Some(labelled(&far)),
+        ..validation_only.clone()
+    };
+    let calibration_only = TrainingSet {
+        calibration: Some(labelled(&far)),
+        ..training.clone()
+    };
+    assert!(
+        Calibration::learn(knn.as_ref(), &training, &ConfidenceSettings::default())
+            .unwrap()
+            .is_none()
+    );
+    let (on_validation, on_calibration) = (learn(&validation_only), learn(&both));
+    assert_ne!(on_validation, on_calibration);
+    assert_eq!(on_calibration, learn(&calibration_only));
+}
