@@ -235,7 +235,7 @@ impl FaultPlan {
         images: impl Iterator<Item = &'a GrayImage>,
         clean: &[Vec<Option<f64>>],
         scales: &[FeatureScale],
-        extract: &mut dyn FnMut(&[usize], &[GrayImage]) -> Result<FeatureRows, E>,
+        extract: &mut ExtractChanged<'_, E>,
     ) -> Result<Corrupted, E> {
         let n_frames = clean.len();
         let mut rngs: Vec<ChaCha8Rng> = (0..self.faults.len())
@@ -317,6 +317,9 @@ impl FaultPlan {
         Ok(Corrupted { rows, labels })
     }
 }
+
+/// Features of changed images: `(frame indices, images) → rows`, for [`FaultPlan::apply_with`].
+pub type ExtractChanged<'a, E> = dyn FnMut(&[usize], &[GrayImage]) -> Result<FeatureRows, E> + 'a;
 
 /// Whether a feature value counts as changed (see [`CHANGE_TOLERANCE`]).
 fn changed(clean: Option<f64>, now: Option<f64>, range: f64) -> bool {
