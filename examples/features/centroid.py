@@ -87,6 +87,12 @@ def centroid(rows, bright):
     return (sx / n, sy / n) if n else None
 
 
+def text(value):
+    """The shortest text that reads back to the same float, as Rust's `{}` writes it."""
+    s = repr(value)
+    return s[:-2] if s.endswith(".0") else s
+
+
 def main():
     if len(sys.argv) < 2:
         sys.exit("usage: centroid.py DATASET_FOLDER")
@@ -100,8 +106,7 @@ def main():
     for k, name in enumerate(files):
         _, _, rows = read_png_grey(os.path.join(folder, name))
         c = centroid(rows, polarity == "bright_on_dark")
-        # repr gives the shortest text that reads back to the same float, as Rust's `{}` does.
-        out.writerow([k, repr(c[0]), repr(c[1])] if c else [k, "", ""])
+        out.writerow([k, text(c[0]), text(c[1])] if c else [k, "", ""])
 
 
 if __name__ == "__main__":

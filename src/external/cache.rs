@@ -1,6 +1,7 @@
 //! The cache of feature programs' outputs, keyed by what they depend on: the command line, the
-//! content of every argument that names a file (the script or binary itself), and every file of
-//! the dataset folder the program reads. A hit skips the program.
+//! content of every argument that names a file (the script or binary itself), and what the
+//! dataset folder holds (the manifest, and every frame's path, time and pixels). A hit skips the
+//! program, and the writing of the folder.
 //!
 //! Where: `$EVITRACK_CACHE_DIR` (empty: no cache), else `$XDG_CACHE_HOME/evitrack`, else
 //! `$HOME/.cache/evitrack`; entries are `features/<key>.csv`, the program's raw output, checked
@@ -11,6 +12,7 @@ use std::hash::Hasher;
 use std::path::{Path, PathBuf};
 
 use super::ExternalError;
+use crate::dataset::Dataset;
 use crate::features::ExternalFeatureConfig;
 
 /// Where the cache lives, from the environment; `None` turns it off.
@@ -27,7 +29,8 @@ pub fn cache_dir() -> Option<PathBuf> {
 
 /// A 128-bit digest: two SipHash streams told apart by a leading byte. A build of another Rust
 /// version may hash differently, which only costs a miss.
-struct Digest([DefaultHasher; 2]);
+#[derive(Clone)]
+pub(super) struct Digest([DefaultHasher; 2]);
 
 impl Digest {
     fn new() -> Self {
@@ -50,14 +53,30 @@ impl Digest {
     }
 }
 
-/// The key of `program` run on the folder whose files (relative paths, in a fixed order) are
-/// `files`.
+/// The digest of what a dataset folder of `dataset` holds (its ground truth already removed).
+pub(super) fn frames_digest(dataset: &Dataset) -> Digest {
+    let mut digest = Digest::new();
+    digest.add(
+        serde_json::to_string(&dataset.manifest)
+            .unwrap_or_default()
+            .as_bytes(),
+    );
+    for frame in &dataset.frames {
+        digest.add(frame.file.as_bytes());
+        digest.add(&frame.t.to_bits().to_le_bytes());
+        digest.add(&frame.image.width().to_le_bytes());
+        digest.add(&frame.image.height().to_le_bytes());
+        digest.add(frame.image.as_raw());
+    }
+    digest
+}
+
+/// The key of `program` run on the frames of `frames` ([`frames_digest`]).
 pub(super) fn key(
     program: &ExternalFeatureConfig,
-    folder: &Path,
-    files: &[String],
+    frames: &Digest,
 ) -> Result<String, ExternalError> {
-    let mut digest = Digest::new();
+    let mut digest = frames.clone();
     for arg in &program.command {
         digest.add(arg.as_bytes());
         let path = Path::new(arg);
@@ -69,12 +88,6 @@ pub(super) fn key(
             digest.add(b"file");
             digest.add(&bytes);
         }
-    }
-    for file in files {
-        let path = folder.join(file);
-        let bytes = std::fs::read(&path).map_err(|source| ExternalError::Io { path, source })?;
-        digest.add(file.as_bytes());
-        digest.add(&bytes);
     }
     Ok(digest.hex())
 }

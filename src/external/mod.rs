@@ -148,26 +148,46 @@ fn fill_cached(
     rows: &mut [Vec<Option<f64>>],
     dir: Option<&Path>,
 ) -> Result<(), ExternalError> {
-    let Some(first) = set.external().first() else {
+    if set.external().is_empty() {
         return Ok(());
+    }
+    // Features never see the ground truth.
+    let blind = Dataset {
+        manifest: dataset.manifest.clone(),
+        frames: dataset
+            .frames
+            .iter()
+            .map(|f| Frame {
+                truth: None,
+                ..f.clone()
+            })
+            .collect(),
     };
-    let folder = Folder::write(dataset).map_err(|source| ExternalError::Frames {
-        program: first.label(),
-        source,
-    })?;
+    let files: Vec<String> = blind.frames.iter().map(|f| f.file.clone()).collect();
+    let frames_digest = cache::frames_digest(&blind);
+    // Written on the first miss only: a hit costs a hash of the pixels.
+    let mut folder: Option<Folder> = None;
     let mut offset = set.image_values();
     for program in set.external() {
-        let key = cache::key(program, &folder.path, &folder.files)?;
+        let key = cache::key(program, &frames_digest)?;
         let output = match cache::load(dir, &key) {
             Some(output) => output,
             None => {
+                let folder = match &mut folder {
+                    Some(folder) => folder,
+                    None => folder.insert(Folder::write(&blind).map_err(|source| {
+                        ExternalError::Frames {
+                            program: program.label(),
+                            source,
+                        }
+                    })?),
+                };
                 let output = process::run(program, &folder.path)?;
                 cache::store(dir, &key, &output);
                 output
             }
         };
-        let frames = &folder.files[2..];
-        let values = table::read(&output, program, frames)?;
+        let values = table::read(&output, program, &files)?;
         for (row, values) in rows.iter_mut().zip(values) {
             row[offset..offset + values.len()].clone_from_slice(&values);
         }
@@ -180,12 +200,10 @@ fn fill_cached(
 /// dropped.
 struct Folder {
     path: PathBuf,
-    /// Its files: the manifest, the pose table, then the frames in order.
-    files: Vec<String>,
 }
 
 impl Folder {
-    /// `dataset` without its ground truth (features never see it) in a fresh folder.
+    /// `dataset` in a fresh folder.
     fn write(dataset: &Dataset) -> Result<Self, DatasetError> {
         static NEXT: AtomicUsize = AtomicUsize::new(0);
         let name = format!(
@@ -193,30 +211,12 @@ impl Folder {
             std::process::id(),
             NEXT.fetch_add(1, Ordering::Relaxed)
         );
-        let mut folder = Self {
+        let folder = Self {
             path: std::env::temp_dir().join(name),
-            files: Vec::new(),
         };
         // A folder of the same name can only be left over from a killed process of this id.
         let _ = std::fs::remove_dir_all(&folder.path);
-        let blind = Dataset {
-            manifest: dataset.manifest.clone(),
-            frames: dataset
-                .frames
-                .iter()
-                .map(|f| Frame {
-                    truth: None,
-                    ..f.clone()
-                })
-                .collect(),
-        };
-        blind.write(&folder.path)?;
-        let mut files = vec![
-            crate::dataset::MANIFEST_FILE.to_string(),
-            crate::dataset::POSES_FILE.to_string(),
-        ];
-        files.extend(blind.frames.into_iter().map(|f| f.file));
-        folder.files = files;
+        dataset.write(&folder.path)?;
         Ok(folder)
     }
 }
