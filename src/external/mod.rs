@@ -101,6 +101,16 @@ pub enum ExternalError {
         /// The dataset writer's error.
         source: DatasetError,
     },
+    /// The rows handed to [`fill`] are not one per frame, each as long as the feature set.
+    #[error("{rows} feature rows for {frames} frames (each needs {width} values): extract them with the same feature set")]
+    Rows {
+        /// Rows given.
+        rows: usize,
+        /// Frames of the dataset.
+        frames: usize,
+        /// Values of the feature set.
+        width: usize,
+    },
     /// A file could not be read.
     #[error("{}: {source}", path.display())]
     Io {
@@ -150,6 +160,13 @@ fn fill_cached(
 ) -> Result<(), ExternalError> {
     if set.external().is_empty() {
         return Ok(());
+    }
+    if rows.len() != dataset.len() || rows.iter().any(|r| r.len() != set.len()) {
+        return Err(ExternalError::Rows {
+            rows: rows.len(),
+            frames: dataset.len(),
+            width: set.len(),
+        });
     }
     // Features never see the ground truth.
     let blind = Dataset {

@@ -191,4 +191,14 @@ fn values_follow_the_built_in_ones_and_a_cache_hit_skips_the_program() {
     assert_eq!(runs(), 2);
     fill_cached(&set, &data, &mut rows, None).unwrap();
     assert_eq!(runs(), 3);
+    // Rows of another set are refused before the program runs.
+    let mut short = vec![vec![None; 6]; 3];
+    let message = fill_cached(&set, &data, &mut short, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("3 feature rows for 3 frames (each needs 7 values)"),
+        "{message}"
+    );
+    assert_eq!(runs(), 3);
 }
