@@ -58,6 +58,7 @@ pub mod dataset;
 pub mod estimator;
 pub mod evidence;
 pub mod experiment;
+pub mod external;
 pub mod faults;
 pub mod features;
 pub(crate) mod gaussian_process;

@@ -8,6 +8,7 @@ mod conformance;
 mod continuous;
 mod dataset;
 mod evidence;
+mod external_features;
 mod faults;
 mod features;
 mod front_door;

@@ -124,6 +124,11 @@ pub struct FeaturesArgs {
     /// Add the barycentre features (x, y) to the default configuration.
     #[arg(long, conflicts_with = "config")]
     barycentre: bool,
+    /// An external feature program's settings (TOML: `command`, `values`, `missing`,
+    /// `timeout_seconds`, as in a scenario's `[[features.external]]`); its values follow the
+    /// configuration's. Repeatable.
+    #[arg(long = "feature-program", value_name = "FILE.toml")]
+    feature_program: Vec<PathBuf>,
     /// Output CSV file (default: standard output).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -333,9 +338,12 @@ pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
     ensure_output_writable(args.out.as_deref())?;
     let dataset = read_dataset(&args.dataset)?;
     let what = args.dataset.display().to_string();
-    let set =
-        feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?.check()?;
-    let rows = extract_with_progress(&set, &dataset);
+    let mut config = feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?;
+    config
+        .external
+        .extend(super::programs::read_programs(&args.feature_program)?);
+    let set = config.check()?;
+    let rows = extract_with_progress(&set, &dataset, &what)?;
     let mut csv = csv::Writer::from_writer(Vec::new());
     let with_truth = dataset.frames.iter().all(|f| f.truth.is_some());
     let mut header = vec!["file".to_string(), "t".to_string()];

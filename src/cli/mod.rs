@@ -3,6 +3,7 @@
 mod data;
 mod merge;
 mod model;
+mod programs;
 mod runs;
 mod sweep;
 mod tables;
@@ -188,16 +189,20 @@ fn polarity_name(p: Polarity) -> &'static str {
     }
 }
 
-/// The features of every frame, on every core, with a progress bar.
-pub(crate) fn extract_with_progress(set: &FeatureSet, dataset: &Dataset) -> FeatureRows {
+/// The features of every frame, on every core, with a progress bar; then the external
+/// programs' (`what` names the dataset in their errors).
+pub(crate) fn extract_with_progress(
+    set: &FeatureSet,
+    dataset: &Dataset,
+    what: &str,
+) -> Result<FeatureRows> {
     let bar = progress_bar("features");
     bar.set_length(dataset.len() as u64);
-    let images: Vec<_> = dataset.images().collect();
-    let rows = set.extract_on(&images, cores(), &mut |done, _| {
+    let rows = evitrack::external::extract(set, dataset, cores(), &mut |done, _| {
         bar.set_position(done as u64)
     });
     bar.finish_and_clear();
-    rows
+    rows.with_context(|| format!("the features of {what}"))
 }
 
 /// A spinner with the elapsed time, for a stage that reports no progress of its own (a fit).

@@ -151,6 +151,10 @@ pub struct TrainArgs {
     /// Add the barycentre features to the default configuration.
     #[arg(long, conflicts_with = "config")]
     pub(super) barycentre: bool,
+    /// An external feature program's settings (TOML: `command`, `values`, `missing`,
+    /// `timeout_seconds`); its values follow the configuration's. Repeatable.
+    #[arg(long = "feature-program", value_name = "FILE.toml")]
+    pub(super) feature_program: Vec<PathBuf>,
     /// Seed of the EM initialisations (`model.seed`).
     #[arg(long, default_value_t = 1)]
     pub(super) seed: u64,
@@ -202,6 +206,10 @@ pub struct TrackArgs {
     /// Output CSV of per-frame estimates (default: standard output).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// The settings of each external feature program the model was trained with, in order (a
+    /// model file runs no program by itself). Repeatable.
+    #[arg(long = "feature-program", value_name = "FILE.toml")]
+    feature_program: Vec<PathBuf>,
     /// Options given here replace the model's tracker settings.
     #[command(flatten)]
     track: TrackOptions,
@@ -279,14 +287,17 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     ensure_output_writable(Some(&args.out))?;
     let dataset = read_dataset(&args.dataset)?;
     let what = args.dataset.display().to_string();
-    let config = feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?;
+    let mut config = feature_config_for(args.config.as_deref(), args.barycentre, &dataset, &what)?;
+    config
+        .external
+        .extend(super::programs::read_programs(&args.feature_program)?);
     let set = config.check()?;
     let names = set.names();
     let sample = DatasetFeatures {
         poses: dataset.truth_positions().with_context(|| {
             format!("{what} has frames without ground-truth poses: training needs the pose of every sample")
         })?,
-        rows: extract_with_progress(&set, &dataset),
+        rows: extract_with_progress(&set, &dataset, &what)?,
     };
     let validation = match &args.validation {
         Some(path) => {
@@ -301,7 +312,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
                             path.display()
                         )
                     })?,
-                    rows: extract_with_progress(&set, &data),
+                    rows: extract_with_progress(&set, &data, &path.display().to_string())?,
                 },
                 times,
             ))
@@ -427,6 +438,11 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
             args.model.display()
         )
     })?;
+    let config = super::programs::for_model(
+        config,
+        super::programs::read_programs(&args.feature_program)?,
+        &args.model.display().to_string(),
+    )?;
     let set = config.check()?;
     let names = set.names();
     if names != estimator.feature_names() {
@@ -438,6 +454,8 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     }
     let dataset = read_dataset(&args.dataset)?;
     check_polarity(&config, &dataset, &args.dataset.display().to_string())?;
+    let what = args.dataset.display().to_string();
+    let rows = extract_with_progress(&set, &dataset, &what)?;
     let bar = progress_bar("track");
     bar.set_length(dataset.len() as u64);
     let label = args
@@ -447,8 +465,8 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         .unwrap_or_else(|| "dataset".into());
     let mut records = Vec::with_capacity(dataset.len());
     let mut motion = estimator.start_motion();
-    for (i, frame) in dataset.frames.iter().enumerate() {
-        let estimate = motion.next(frame.t, &set.extract(&frame.image))?;
+    for (i, (frame, row)) in dataset.frames.iter().zip(&rows).enumerate() {
+        let estimate = motion.next(frame.t, row)?;
         let truth = frame.truth.map(|t| [t.x, t.y]);
         records.push(FrameRecord::new(
             estimator.method(),

@@ -396,7 +396,8 @@ impl DatasetFeatures {
     /// # Errors
     /// [`EstimatorError::NoTruth`] when the dataset has no ground-truth poses;
     /// [`EstimatorError::Polarity`] when the set reads frames the other way round from the one
-    /// the dataset's manifest declares.
+    /// the dataset's manifest declares; an invalid input when the set has external programs,
+    /// which `crate::external::extract` runs (this room runs no program).
     pub fn extract(
         dataset: &Dataset,
         set: &FeatureSet,
@@ -409,6 +410,16 @@ impl DatasetFeatures {
                 declared,
                 configured,
             });
+        }
+        if let Some(program) = set.external().first() {
+            return Err(ModelError::InvalidInput {
+                what: "feature set",
+                reason: format!(
+                    "it runs the program `{}`: extract with `evitrack::external::extract`",
+                    program.label()
+                ),
+            }
+            .into());
         }
         let poses = dataset
             .truth_positions()

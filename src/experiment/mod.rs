@@ -43,6 +43,14 @@ pub enum ExperimentError {
         /// The simulator's error (shared by the sweep variants that asked for the dataset).
         source: Arc<SimError>,
     },
+    /// An external feature program failed on a motion's frames.
+    #[error("the features of {what}: {source}")]
+    External {
+        /// Which motion.
+        what: String,
+        /// The program's error (shared by the sweep variants that asked for the rows).
+        source: Arc<crate::external::ExternalError>,
+    },
     /// The adaptive sample trajectory failed.
     #[error("the adaptive sample trajectory: {0}")]
     Adaptive(#[from] crate::adaptive::AdaptiveError),
@@ -144,13 +152,18 @@ pub fn run(
         } else {
             let clock = Instant::now();
             let data = bench.dataset(&s.sim, motion, seed, &mut |_, _| {})?;
-            let corrupted = plan.apply(
-                seed::for_faults(master, k),
-                data.images(),
-                &rows,
-                set,
-                &scales,
-            );
+            let corrupted = plan
+                .apply_with(
+                    seed::for_faults(master, k),
+                    data.images(),
+                    &rows,
+                    &scales,
+                    &mut |at, images| corrupted_features(set, &data, at, images, bench.threads()),
+                )
+                .map_err(|source| ExperimentError::External {
+                    what: format!("{label} (with its faults)"),
+                    source: Arc::new(source),
+                })?;
             timings.features += clock.elapsed().as_secs_f64();
             (Arc::new(corrupted.rows), Some(corrupted.labels))
         };
@@ -270,6 +283,34 @@ pub fn run(
         timings,
         scenario_toml: scenario.to_toml()?,
     })
+}
+
+/// The features of the images a fault changed (`images`, frames `at` of `data`), the external
+/// programs' included: they run on those frames as a dataset of their own.
+fn corrupted_features(
+    set: &crate::features::FeatureSet,
+    data: &crate::dataset::Dataset,
+    at: &[usize],
+    images: &[image::GrayImage],
+    threads: usize,
+) -> Result<FeatureRows, crate::external::ExternalError> {
+    let refs: Vec<_> = images.iter().collect();
+    let mut rows = set.extract_on(&refs, threads, &mut |_, _| {});
+    if !set.external().is_empty() {
+        let frames = at
+            .iter()
+            .zip(images)
+            .map(|(&i, image)| crate::dataset::Frame {
+                image: image.clone(),
+                ..data.frames[i].clone()
+            })
+            .collect::<Vec<_>>();
+        let mut manifest = data.manifest.clone();
+        manifest.frame_count = frames.len();
+        let edited = crate::dataset::Dataset { manifest, frames };
+        crate::external::fill(set, &edited, &mut rows)?;
+    }
+    Ok(rows)
 }
 
 /// Ground truth (mm), frame times (s) and feature rows of one motion.

@@ -92,10 +92,10 @@ pub fn sample_trajectory(
             if data.truth_positions().is_none() {
                 return Err("the simulator gave no ground truth".to_string());
             }
-            let images: Vec<_> = data.images().collect();
-            let features = set.extract_on(&images, threads, &mut |d, t| {
+            let features = crate::external::extract(set, &data, threads, &mut |d, t| {
                 progress("adaptive features", d, t)
-            });
+            })
+            .map_err(|e| e.to_string())?;
             added_frames.extend(data.frames);
             Ok(features)
         })?;

@@ -6,7 +6,6 @@
 //! first.
 
 use std::collections::HashMap;
-use std::convert::Infallible;
 use std::hash::Hash;
 use std::sync::{Arc, Mutex, OnceLock};
 
@@ -15,6 +14,7 @@ use crate::dataset::Dataset;
 use crate::estimator::{
     EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimator, TrainingSet,
 };
+use crate::external::ExternalError;
 use crate::features::{FeatureConfig, FeatureRows, FeatureSet};
 use crate::sim::{Motion, SimError, SimSettings};
 
@@ -33,7 +33,7 @@ pub enum Step {
 #[derive(Default)]
 pub struct Workbench {
     datasets: Mutex<HashMap<String, Shared<Dataset, Arc<SimError>>>>,
-    features: Mutex<HashMap<String, Shared<FeatureRows, Infallible>>>,
+    features: Mutex<HashMap<String, Shared<FeatureRows, Arc<ExternalError>>>>,
     /// Fits of the methods that share them (`gp`, `continuous`), keyed by [`fit_key`]; `None`
     /// when the fit failed (each later caller then fits again for its own error).
     fits: Mutex<HashMap<Vec<u8>, SharedFit>>,
@@ -97,7 +97,8 @@ impl Workbench {
     }
 
     /// The feature rows of a dataset obtained as in [`Workbench::dataset`], extracted with
-    /// `set`, the checked form of `config`. `progress(step, done, total)` counts frames.
+    /// `set`, the checked form of `config` (its external programs run once per dataset).
+    /// `progress(step, done, total)` counts frames.
     pub fn features(
         &self,
         sim: &SimSettings,
@@ -113,14 +114,16 @@ impl Workbench {
         let key =
             serde_json::json!({"sim": sim, "motion": motion, "seed": seed, "features": config})
                 .to_string();
-        let rows = memo(&self.features, key, || {
-            let images: Vec<_> = dataset.images().collect();
-            let rows = set.extract_on(&images, self.threads(), &mut |d, t| {
+        memo(&self.features, key, || {
+            crate::external::extract(set, &dataset, self.threads(), &mut |d, t| {
                 progress(Step::Extract, d, t)
-            });
-            Ok::<_, Infallible>(rows)
-        });
-        Ok(rows.unwrap_or_else(|never| match never {}))
+            })
+            .map_err(Arc::new)
+        })
+        .map_err(|source| ExperimentError::External {
+            what: motion.name().to_string(),
+            source,
+        })
     }
 
     /// How many distinct shared fits the workbench holds.

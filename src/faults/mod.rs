@@ -27,7 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::features::FeatureSet;
+use crate::features::{FeatureRows, FeatureSet};
 
 /// A feature counts as changed by a fault when its value moved by more than this share of its
 /// range over the sample trajectory (or appeared or vanished): smaller moves are below what the
@@ -216,6 +216,27 @@ impl FaultPlan {
         set: &FeatureSet,
         scales: &[FeatureScale],
     ) -> Corrupted {
+        let mut extract = |_: &[usize], edited: &[GrayImage]| {
+            Ok::<_, std::convert::Infallible>(set.extract_batch(edited))
+        };
+        self.apply_with(seed, images, clean, scales, &mut extract)
+            .unwrap_or_else(|never| match never {})
+    }
+
+    /// [`FaultPlan::apply`] with the features of the changed images from
+    /// `extract(frame indices, images)`, called once with every changed image of the motion (so
+    /// that a feature program runs once).
+    ///
+    /// # Errors
+    /// `extract`'s.
+    pub fn apply_with<'a, E>(
+        &self,
+        seed: u64,
+        images: impl Iterator<Item = &'a GrayImage>,
+        clean: &[Vec<Option<f64>>],
+        scales: &[FeatureScale],
+        extract: &mut ExtractChanged<'_, E>,
+    ) -> Result<Corrupted, E> {
         let n_frames = clean.len();
         let mut rngs: Vec<ChaCha8Rng> = (0..self.faults.len())
             .map(|k| ChaCha8Rng::seed_from_u64(crate::seed::derive(seed, &format!("fault{k}"))))
@@ -227,8 +248,11 @@ impl FaultPlan {
             .zip(&mut rngs)
             .map(|(f, rng)| active_frames(n_frames, f.share, f.window, f.burst, rng))
             .collect();
-        let mut rows = Vec::with_capacity(n_frames);
+        // Images first (each fault's stream is drawn by one kind of effect only, so painting
+        // every frame before changing any feature keeps every stream's order).
+        let mut struck_by = Vec::with_capacity(n_frames);
         let mut labels = Vec::with_capacity(n_frames);
+        let (mut edited_at, mut edited) = (Vec::new(), Vec::new());
         for (i, image) in images.take(n_frames).enumerate() {
             let struck: Vec<usize> = (0..self.faults.len()).filter(|&k| strikes[k][i]).collect();
             let mut label = FrameFaults {
@@ -238,7 +262,7 @@ impl FaultPlan {
                     .collect(),
                 ..FrameFaults::default()
             };
-            let mut edited: Option<GrayImage> = None;
+            let mut painted: Option<GrayImage> = None;
             for &k in &struck {
                 let fault = &self.faults[k];
                 let rng = &mut rngs[k];
@@ -247,15 +271,28 @@ impl FaultPlan {
                     Effect::Dropped => label.dropped = true,
                     Effect::Features { .. } => {}
                     effect => {
-                        let img = edited.get_or_insert_with(|| image.clone());
+                        let img = painted.get_or_insert_with(|| image.clone());
                         image_faults::paint(img, effect, offset, rng);
                     }
                 }
             }
+            if let (false, Some(img)) = (label.dropped, painted) {
+                edited_at.push(i);
+                edited.push(img);
+            }
+            struck_by.push(struck);
+            labels.push(label);
+        }
+        let mut extracted = edited_at.iter().copied().zip(extract(&edited_at, &edited)?);
+        let mut next = extracted.next();
+        let mut rows = Vec::with_capacity(n_frames);
+        for (i, (label, struck)) in labels.iter_mut().zip(&struck_by).enumerate() {
             let mut row = if label.dropped {
-                vec![None; set.len()]
-            } else if let Some(img) = &edited {
-                set.extract(img)
+                vec![None; clean[i].len()]
+            } else if next.as_ref().is_some_and(|(k, _)| *k == i) {
+                let (_, row) = next.take().unwrap_or_default();
+                next = extracted.next();
+                row
             } else {
                 clean[i].clone()
             };
@@ -276,11 +313,13 @@ impl FaultPlan {
                 .filter(|&j| changed(clean[i][j], row[j], scales[j].range))
                 .collect();
             rows.push(row);
-            labels.push(label);
         }
-        Corrupted { rows, labels }
+        Ok(Corrupted { rows, labels })
     }
 }
+
+/// Features of changed images: `(frame indices, images) → rows`, for [`FaultPlan::apply_with`].
+pub type ExtractChanged<'a, E> = dyn FnMut(&[usize], &[GrayImage]) -> Result<FeatureRows, E> + 'a;
 
 /// Whether a feature value counts as changed (see [`CHANGE_TOLERANCE`]).
 fn changed(clean: Option<f64>, now: Option<f64>, range: f64) -> bool {

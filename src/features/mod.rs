@@ -15,6 +15,7 @@
 //! Line `i` of `k` has direction angle `i · 180° / k` from +x toward +y.
 
 pub mod barycentre;
+pub mod external;
 pub mod mesh;
 pub mod silhouette;
 pub mod size;
@@ -28,6 +29,7 @@ use image::GrayImage;
 use serde::{Deserialize, Serialize};
 
 pub use barycentre::{barycentre, Background};
+pub use external::{ExternalFeatureConfig, MissingValues};
 pub use mesh::{analyse_mesh, FeatureSmoothness, MeshAnalysis, MeshOrder};
 pub use silhouette::{extract_silhouette, Polarity, Silhouette, SilhouetteConfig, Threshold};
 pub use size::{distance_from_line, PersistenceDiagram, SizeTable, Window};
@@ -40,6 +42,14 @@ pub type FeatureRows = Vec<Vec<Option<f64>>>;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum FeatureError {
+    /// An external feature program's settings are wrong.
+    #[error("feature program `{program}`: {reason}")]
+    BadProgram {
+        /// Its command line.
+        program: String,
+        /// What is wrong and how to fix it.
+        reason: String,
+    },
     /// The size-function window is empty, reversed or not finite.
     #[error(
         "size-function window [{a}, {b}] is invalid: give finite a < b in pixels, e.g. [0, 128]"
@@ -219,6 +229,10 @@ pub struct FeatureConfig {
     pub size_functions: SizeFunctionConfig,
     /// Intensity barycentre.
     pub barycentre: BarycentreConfig,
+    /// Programs in any language whose values follow the built-in ones (`[[features.external]]`);
+    /// left out of the written form when there is none, so older files keep their bytes.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub external: Vec<ExternalFeatureConfig>,
 }
 
 impl FeatureConfig {
@@ -263,9 +277,16 @@ impl FeatureConfig {
                 background: self.barycentre.background,
             }));
         }
+        let mut set = FeatureSet::new(features)?;
+        for program in &self.external {
+            program.check()?;
+            set.names.extend(program.values.iter().cloned());
+        }
+        set.external = self.external.clone();
+        set.check_unique()?;
         Ok(FeatureSet {
             polarity: Some(self.polarity),
-            ..FeatureSet::new(features)?
+            ..set
         })
     }
 }
@@ -357,6 +378,8 @@ pub struct FeatureSet {
     names: Vec<String>,
     /// How the set reads frames, when it comes from a [`FeatureConfig`].
     polarity: Option<Polarity>,
+    /// Programs whose values follow the extractors' (see [`FeatureSet::external`]).
+    external: Vec<ExternalFeatureConfig>,
 }
 
 impl FeatureSet {
@@ -369,21 +392,41 @@ impl FeatureSet {
             counts.push(n.len());
             names.extend(n);
         }
-        if names.is_empty() {
-            return Err(FeatureError::NoFeatures);
-        }
-        let mut seen = std::collections::HashSet::new();
-        for n in &names {
-            if !seen.insert(n.as_str()) {
-                return Err(FeatureError::DuplicateName { name: n.clone() });
-            }
-        }
-        Ok(Self {
+        let set = Self {
             features,
             counts,
             names,
             polarity: None,
-        })
+            external: Vec::new(),
+        };
+        set.check_unique()?;
+        Ok(set)
+    }
+
+    /// At least one name, and no name twice.
+    fn check_unique(&self) -> Result<(), FeatureError> {
+        if self.names.is_empty() {
+            return Err(FeatureError::NoFeatures);
+        }
+        let mut seen = std::collections::HashSet::new();
+        for n in &self.names {
+            if !seen.insert(n.as_str()) {
+                return Err(FeatureError::DuplicateName { name: n.clone() });
+            }
+        }
+        Ok(())
+    }
+
+    /// The external programs, in order; their values are the last of [`FeatureSet::names`].
+    /// The per-image methods below leave them missing (`None`): `crate::external::extract`
+    /// runs the programs on a dataset folder and fills them in.
+    pub fn external(&self) -> &[ExternalFeatureConfig] {
+        &self.external
+    }
+
+    /// How many values come from the image extractors (the first ones of every row).
+    pub fn image_values(&self) -> usize {
+        self.counts.iter().sum()
     }
 
     /// The polarity the set reads frames with: a [`FeatureConfig`]'s, `None` for your own
@@ -408,8 +451,8 @@ impl FeatureSet {
         self.names.is_empty()
     }
 
-    /// The values for one image, in the order of [`FeatureSet::names`]; `None` = missing.
-    /// Never NaN or infinite.
+    /// The values for one image, in the order of [`FeatureSet::names`]; `None` = missing (always
+    /// for the external programs' values). Never NaN or infinite.
     pub fn extract(&self, image: &GrayImage) -> Vec<Option<f64>> {
         let mut out = Vec::with_capacity(self.len());
         for (f, &count) in self.features.iter().zip(&self.counts) {
@@ -422,6 +465,7 @@ impl FeatureSet {
                 *v = None;
             }
         }
+        out.resize(self.len(), None);
         out
     }
 
@@ -483,114 +527,4 @@ impl FeatureSet {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn default_is_six_size_functions_and_preset_adds_barycentre() {
-        let six = FeatureConfig::default().check().unwrap();
-        assert_eq!(
-            six.names(),
-            (0..6).map(|i| format!("size_line{i}")).collect::<Vec<_>>()
-        );
-        let eight = FeatureConfig::with_barycentre().check().unwrap();
-        assert_eq!(eight.len(), 8);
-        assert_eq!(&eight.names()[6..], &["barycentre_x", "barycentre_y"]);
-    }
-
-    #[test]
-    fn bad_settings_are_rejected() {
-        let mut c = FeatureConfig::default();
-        c.size_functions.window = [5.0, 5.0];
-        assert!(matches!(c.check(), Err(FeatureError::BadWindow { .. })));
-        let mut c = FeatureConfig::default();
-        c.size_functions.lines = 0;
-        assert!(matches!(
-            c.check(),
-            Err(FeatureError::BadLines { lines: 0 })
-        ));
-        let mut c = FeatureConfig::default();
-        c.size_functions.mean = MeanMethod::Table;
-        c.size_functions.table_grid = 1;
-        assert!(matches!(c.check(), Err(FeatureError::BadGrid { grid: 1 })));
-        c.size_functions.table_grid = 5000;
-        assert!(matches!(
-            c.check(),
-            Err(FeatureError::BadGrid { grid: 5000 })
-        ));
-        let mut c = FeatureConfig::default();
-        c.size_functions.enabled = false;
-        assert!(matches!(c.check(), Err(FeatureError::NoFeatures)));
-        let mut c = FeatureConfig::default();
-        c.silhouette.min_contrast = f64::NAN;
-        assert!(matches!(c.check(), Err(FeatureError::BadContrast { .. })));
-    }
-
-    #[test]
-    fn config_round_trips_through_toml_and_rejects_typos() {
-        let c = FeatureConfig::with_barycentre();
-        let text = toml::to_string(&c).unwrap();
-        let back: FeatureConfig = toml::from_str(&text).unwrap();
-        assert_eq!(back, c);
-        let partial: FeatureConfig = toml::from_str(
-            "[size_functions]\nlines = 4\nmean = \"table\"\n[silhouette]\nthreshold = { fixed = 90 }\n",
-        )
-        .unwrap();
-        assert_eq!(partial.size_functions.lines, 4);
-        assert_eq!(partial.silhouette.threshold, Threshold::Fixed(90));
-        assert!(toml::from_str::<FeatureConfig>("[size_functions]\nline = 4\n").is_err());
-        assert!(toml::from_str::<FeatureConfig>("colour = 1\n").is_err());
-    }
-
-    #[test]
-    fn extraction_on_threads_gives_the_same_rows_in_order() {
-        let set = FeatureConfig::with_barycentre().check().unwrap();
-        let images: Vec<GrayImage> = (0..7)
-            .map(|k| {
-                let pose = [-6.0 + 2.0 * k as f64, 40.0 + 2.5 * k as f64];
-                synthetic::rig_like_frame(pose, 2.0, k).unwrap()
-            })
-            .collect();
-        let refs: Vec<&GrayImage> = images.iter().collect();
-        let one = set.extract_batch(refs.iter().copied());
-        assert!(one.iter().flatten().any(Option::is_some));
-        for threads in [1, 2, 3, 16] {
-            let mut calls = Vec::new();
-            let rows = set.extract_on(&refs, threads, &mut |done, total| calls.push((done, total)));
-            assert_eq!(rows, one, "{threads} threads");
-            assert!(calls.windows(2).all(|w| w[0].0 < w[1].0), "{calls:?}");
-            assert_eq!(calls.last(), Some(&(7, 7)), "{threads} threads");
-        }
-        assert!(set
-            .extract_on(&[], 2, &mut |_, _| panic!("no frames"))
-            .is_empty());
-    }
-
-    #[derive(Debug)]
-    struct Sloppy(&'static str, usize);
-
-    impl Feature for Sloppy {
-        fn names(&self) -> Vec<String> {
-            vec![self.0.to_string(); 1]
-        }
-        fn extract(&self, _: &GrayImage, out: &mut Vec<Option<f64>>) {
-            out.extend(std::iter::repeat_n(Some(f64::NAN), self.1));
-        }
-    }
-
-    #[test]
-    fn custom_features_are_padded_and_sanitised() {
-        let set =
-            FeatureSet::new(vec![Arc::new(Sloppy("a", 0)), Arc::new(Sloppy("b", 3))]).unwrap();
-        let v = set.extract(&GrayImage::new(4, 4));
-        assert_eq!(v, vec![None, None]);
-        assert!(matches!(
-            FeatureSet::new(vec![Arc::new(Sloppy("a", 1)), Arc::new(Sloppy("a", 1))]),
-            Err(FeatureError::DuplicateName { .. })
-        ));
-        assert!(matches!(
-            FeatureSet::new(vec![]),
-            Err(FeatureError::NoFeatures)
-        ));
-    }
-}
+mod tests;
