@@ -5,6 +5,7 @@
 use super::engine::{frame_of, run, to_mass_function, Mode};
 use super::limits::WorkLimits;
 use super::mass::MassFunction;
+use super::subset::word_count;
 use super::EvidenceError;
 
 /// Result of a combination rule (Dempster's, or any [`super::Rule`]).
@@ -74,26 +75,28 @@ pub fn conjunctive_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
 }
 
 /// The conjunctive combination on a frame of `n` from Dempster's `c`: its function (none on total
-/// conflict) scaled by e^(−K), and κ on ∅.
+/// conflict) scaled by e^(−K), and κ on ∅ (on the words, so no subset is built).
 pub(super) fn unnormalised(n: usize, c: &Combination) -> MassFunction {
-    let kept = c.mass.as_ref();
     let scale = (-c.conflict_level).exp();
     let kappa = -(-c.conflict_level).exp_m1();
-    let mut focal = Vec::new();
+    let w = word_count(n).max(1);
+    let mut words = Vec::new();
     let mut mass = Vec::new();
-    if let Some(k) = kept {
-        for (s, m) in k.focal() {
+    if let Some(k) = &c.mass {
+        words.reserve((k.len() + 1) * w);
+        mass.reserve(k.len() + 1);
+        for (s, &m) in k.set_words().zip(k.masses()) {
             if m * scale > 0.0 {
-                focal.push(s.clone());
+                words.extend_from_slice(s);
                 mass.push(m * scale);
             }
         }
     }
     if kappa > 0.0 {
-        focal.push(super::Subset::empty(n));
+        words.resize(words.len() + w, 0);
         mass.push(kappa);
     }
-    MassFunction::from_parts(n, focal, mass)
+    MassFunction::from_words(n, words, mass)
 }
 
 /// Dempster's rule for two functions.

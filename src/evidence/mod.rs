@@ -1,5 +1,5 @@
 //! Dempster–Shafer evidence algebra: subsets of finite frames, mass functions, Dempster's rule and
-//! the level of conflict, refinings between frames, constructors from likelihoods, discounting and
+//! every other combination rule ([`combine_all`]), the level of conflict, refinings between frames, constructors from likelihoods, discounting and
 //! decisions (relative plausibility, pignistic probability, pointwise estimates).
 //!
 //! This room is a leaf: it knows nothing of images, robots or the rest of the crate, so every other

@@ -134,18 +134,8 @@ pub fn combine_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
         }
         Rule::Yager => {
             let c = dempster_all_within(copies, limits)?;
-            let conj = unnormalised(n, &c);
-            let mut pairs: Vec<(Subset, f64)> = Vec::with_capacity(conj.len() + 1);
-            pairs.extend(
-                conj.focal()
-                    .filter(|(s, _)| !s.is_empty())
-                    .map(|(s, m)| (s.clone(), m)),
-            );
-            pairs.push((Subset::full(n), c.conflict_mass));
-            Ok(Combination {
-                mass: Some(from_pairs(n, pairs)),
-                ..c
-            })
+            let mass = Some(yager(n, &c));
+            Ok(Combination { mass, ..c })
         }
         Rule::DuboisPrade => {
             let c = dempster_all_within(copies, limits)?;
@@ -175,6 +165,30 @@ pub fn combine_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
             dempster_all_within(std::iter::repeat_n(&mean, fs.len()), limits)
         }
     }
+}
+
+/// Yager's combination from Dempster's `c`: its function scaled by e^(−K), κ added on Ω (on the
+/// words, so no subset is built).
+fn yager(n: usize, c: &Combination) -> MassFunction {
+    let conj = unnormalised(n, c);
+    let full = Subset::full(n);
+    let full = full.words();
+    let mut words = Vec::with_capacity((conj.len() + 1) * full.len());
+    let mut mass = Vec::with_capacity(conj.len() + 1);
+    let mut on_full = c.conflict_mass;
+    for (s, &m) in conj.set_words().zip(conj.masses()) {
+        if s == full {
+            on_full += m;
+        } else if s.iter().any(|&x| x != 0) {
+            words.extend_from_slice(s);
+            mass.push(m);
+        }
+    }
+    if on_full > 0.0 {
+        words.extend_from_slice(full);
+        mass.push(on_full);
+    }
+    MassFunction::from_words(n, words, mass)
 }
 
 /// A function from (set, mass) pairs that sum to 1 up to rounding: identical sets merged, zero
