@@ -1,6 +1,7 @@
 //! Dempster–Shafer evidence algebra: subsets of finite frames, mass functions, Dempster's rule and
-//! every other combination rule ([`combine_all`]), the level of conflict, refinings between frames, constructors from likelihoods, discounting and
-//! decisions (relative plausibility, pignistic probability, pointwise estimates).
+//! every other combination rule ([`combine_all`]), the level of conflict, refinings between
+//! frames, constructors from likelihoods, discounting and decisions (relative plausibility,
+//! pignistic probability, pointwise estimates).
 //!
 //! This room is a leaf: it knows nothing of images, robots or the rest of the crate, so every other
 //! room can build on it and it can be tested on its own.
