@@ -332,54 +332,9 @@ impl Engine {
     }
 }
 
-/// ln(eˣ + eʸ) without overflow or underflow.
-fn log_add(x: f64, y: f64) -> f64 {
-    let (hi, lo) = if x >= y { (x, y) } else { (y, x) };
-    if lo == f64::NEG_INFINITY {
-        return hi;
-    }
-    hi + (lo - hi).exp().ln_1p()
-}
-
-impl Engine {
-    /// The Dempster step in log scale (masses of `cur`, `b` and `out` are natural logs), for when
-    /// some product of masses would not be a normal f64 (two masses of 1e-200): out ← the merged
-    /// non-empty intersections. Returns the log of their total mass, or `None` when no pair
-    /// intersects (total conflict).
-    #[cold]
-    fn step_log(
-        &mut self,
-        cur: &Arena,
-        b: &Arena,
-        out: &mut Arena,
-    ) -> Result<Option<f64>, OverLimit> {
-        let w = self.w;
-        let mut mask = self.prepare(cur.len() * b.len(), out);
-        let mut x = vec![0u64; w];
-        for (a, &la) in cur.words.chunks_exact(w).zip(&cur.mass) {
-            for (bw, &lb) in b.words.chunks_exact(w).zip(&b.mass) {
-                let mut any = 0u64;
-                for ((xk, ak), bk) in x.iter_mut().zip(a).zip(bw) {
-                    *xk = ak & bk;
-                    any |= *xk;
-                }
-                if any == 0 || la + lb == f64::NEG_INFINITY {
-                    continue;
-                }
-                let h = hash_words(&x, &self.keys);
-                if 2 * out.len() >= mask {
-                    mask = self.grow(out);
-                }
-                Self::insert::<true>(&mut self.table, mask, out, (&x, h, la + lb), self.max_sets)?;
-            }
-        }
-        let total = out
-            .mass
-            .iter()
-            .fold(f64::NEG_INFINITY, |s, &l| log_add(s, l));
-        Ok((total > f64::NEG_INFINITY).then_some(total))
-    }
-}
+#[path = "engine_log.rs"]
+mod log;
+use log::log_add;
 
 pub(super) fn frame_of<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
@@ -479,18 +434,30 @@ fn run_in<R>(
     let mut s = 1.0;
     // Whether `cur` holds normalised log masses (Dempster mode only).
     let mut logged = false;
+    let mut low = 0.0;
     for (i, f) in fs.iter().enumerate() {
         if i == 0 {
             empty = cur.load(f);
             s = cur.mass.iter().sum();
+            low = min_mass(cur);
         } else {
             let b_empty = b.load(f);
             if normalise {
-                if !logged && min_mass(cur) * (min_mass(b) / s) < SMALLEST_PRODUCT {
-                    for m in &mut cur.mass {
-                        *m = m.ln() - s.ln();
+                if !logged {
+                    // `low` bounds the running masses from below; the exact minimum is looked
+                    // up only when the bound is too low, so the usual step costs no pass.
+                    let bs = min_mass(b) / s;
+                    if low * bs < SMALLEST_PRODUCT {
+                        low = min_mass(cur);
                     }
-                    logged = true;
+                    if low * bs < SMALLEST_PRODUCT {
+                        for m in &mut cur.mass {
+                            *m = m.ln() - s.ln();
+                        }
+                        logged = true;
+                    } else {
+                        low *= bs;
+                    }
                 }
                 if logged {
                     for m in &mut b.mass {
@@ -544,6 +511,7 @@ fn run_in<R>(
                 for m in &mut cur.mass {
                     *m /= s;
                 }
+                low /= s;
                 s = cur.mass.iter().sum();
             }
         }
