@@ -66,6 +66,78 @@ fn combine_total_conflict_is_inf_with_a_warning_and_status_zero() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("total conflict"));
 }
 
+/// Issue 29, item 1: a product of 1e-200 · 1e-200 used to underflow and drop its focal set, so
+/// `[S, S, C]` printed "inf" with the total-conflict warning; the exact level is 921.03 in every
+/// order and under the conjunctive rule too.
+#[test]
+fn combine_level_survives_underflow_in_every_order() {
+    let s = r#"{"focal": [[0], [1]], "mass": [1e-200, 1]}"#;
+    let c = r#"{"focal": [[0]], "mass": [1]}"#;
+    for order in [[s, s, c], [s, c, s], [c, s, s]] {
+        for rule in ["dempster", "conjunctive", "yager", "pcr6"] {
+            let input = format!(
+                r#"{{"frame": 2, "rule": "{rule}", "mass_functions": [{}]}}"#,
+                order.join(",")
+            );
+            let out = evitrack(&["combine", "-"], &input);
+            assert_eq!(out.status.code(), Some(0));
+            let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let level = json["conflict_level"].as_f64().expect("a finite level");
+            assert!((level - 921.0340371976183).abs() < 1e-9, "{rule}: {level}");
+            assert!(String::from_utf8_lossy(&out.stderr).is_empty());
+        }
+    }
+}
+
+/// Every rule by name, and `--reliability` (one for all, or one per function).
+#[test]
+fn combine_takes_every_rule_and_reliabilities() {
+    let functions = r#"[{"focal": [[0]], "mass": [1]}, {"focal": [[1]], "mass": [1]}]"#;
+    let rules = [
+        "dempster",
+        "conjunctive",
+        "yager",
+        "dubois_prade",
+        "pcr6",
+        "disjunctive",
+        "cautious",
+        "murphy",
+    ];
+    for rule in rules {
+        let input = format!(r#"{{"frame": 2, "rule": "{rule}", "mass_functions": {functions}}}"#);
+        // Discounted by 0.5, the two certain functions are no longer dogmatic nor in total conflict.
+        let out = evitrack(&["combine", "-", "--reliability", "0.5"], &input);
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "{rule}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        // κ = ½ · ½ for the conjunctive-based rules; the cautious rule's own ∅ mass is also ¼
+        // here; Murphy's mean has κ = 2 · ¼ · ¼ = 1/8.
+        let kappa = json["conflict_mass"].as_f64().unwrap();
+        let want = if rule == "murphy" { 0.125 } else { 0.25 };
+        assert!((kappa - want).abs() < 1e-12, "{rule}: {kappa}");
+    }
+    let input = format!(r#"{{"frame": 2, "rule": "cautious", "mass_functions": {functions}}}"#);
+    let out = evitrack(&["combine", "-"], &input);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("dogmatic"));
+    let out = evitrack(&["combine", "-", "--reliability", "1,0.5"], &input);
+    assert_eq!(out.status.code(), Some(2), "function 0 stays dogmatic");
+    let out = evitrack(&["combine", "-", "--reliability", "0.5,0.5,0.5"], &input);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("reliabilities"));
+    // Yager on total conflict: a result (all on the frame), "inf" and a warning that says so.
+    let input = format!(r#"{{"frame": 2, "rule": "yager", "mass_functions": {functions}}}"#);
+    let out = evitrack(&["combine", "-"], &input);
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["conflict_level"], "inf");
+    assert_eq!(json["focal"], serde_json::json!([[0, 1]]));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("still gives"));
+}
+
 #[test]
 fn combine_bad_input_names_the_culprit_and_exits_2() {
     let cases = [

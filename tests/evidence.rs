@@ -70,8 +70,11 @@ fn combine_json_rejects_unknown_fields_and_bad_shapes() {
         matches!(&e, EvidenceError::Json(m) if m.contains("weight")),
         "{e}"
     );
-    let e = combine_json(r#"{"frame": 4, "rule": "yager", "mass_functions": []}"#).unwrap_err();
-    assert!(matches!(e, EvidenceError::Json(_)));
+    let e = combine_json(r#"{"frame": 4, "rule": "smets", "mass_functions": []}"#).unwrap_err();
+    assert!(
+        matches!(&e, EvidenceError::Json(m) if m.contains("dubois_prade")),
+        "the valid rules are listed: {e}"
+    );
     assert_eq!(
         combine_json(r#"{"frame": 4, "rule": "dempster", "mass_functions": []}"#),
         Err(EvidenceError::NothingToCombine)

@@ -36,6 +36,14 @@ pub struct CombineArgs {
     /// result's focal sets).
     #[arg(long, value_name = "N", default_value_t = CombineLimits::DEFAULT.output_elements)]
     max_output_elements: usize,
+    /// Most tuples of focal sets (one per function) the pcr6 rule may visit.
+    #[arg(long, value_name = "N", default_value_t = WorkLimits::DEFAULT.tuples)]
+    max_tuples: usize,
+    /// Reliability of the sources, in place of the input's "reliability": one α in [0, 1] for
+    /// every function, or one per function (comma-separated). Each function is discounted
+    /// (m(X) ← α·m(X), m(Ω) += 1 − α) before the rule.
+    #[arg(long, value_name = "A[,A...]", value_delimiter = ',')]
+    reliability: Option<Vec<f64>>,
 }
 
 impl CombineArgs {
@@ -44,6 +52,7 @@ impl CombineArgs {
             work: WorkLimits {
                 focal_sets: self.max_focal_sets,
                 set_bytes: self.max_set_mib.saturating_mul(1 << 20),
+                tuples: self.max_tuples,
             },
             output_elements: self.max_output_elements,
         }
@@ -310,13 +319,20 @@ pub fn combine(args: &CombineArgs) -> Result<ExitCode> {
             std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
         (text, file.display().to_string())
     };
-    let report = match evidence::exchange::combine_json_within(&text, &args.limits()) {
+    let parsed = evidence::exchange::parse_input(&text).and_then(|mut input| {
+        if let Some(r) = &args.reliability {
+            input.reliability = Some(evidence::exchange::Reliability::Each(r.clone()));
+        }
+        evidence::exchange::combine_input_within(&input, &args.limits())
+    });
+    let report = match parsed {
         Ok(report) => report,
         Err(EvidenceError::WorkLimit { limit, max }) => {
             let flag = match limit {
                 WorkLimit::FocalSets => format!("--max-focal-sets (now {max})"),
                 WorkLimit::SetBytes => format!("--max-set-mib (now {})", max >> 20),
                 WorkLimit::OutputElements => format!("--max-output-elements (now {max})"),
+                WorkLimit::Tuples => format!("--max-tuples (now {max})"),
             };
             bail!(
                 "combining {name} would need more than {max} {limit}, the limit: \
@@ -325,10 +341,12 @@ pub fn combine(args: &CombineArgs) -> Result<ExitCode> {
         }
         Err(e) => return Err(e).with_context(|| format!("{name} is not a valid combine input")),
     };
-    if report.is_total_conflict() {
+    if report.is_total_conflict() && !report.has_result() {
         eprintln!(
             "warning: the mass functions are in total conflict (κ = 1): no combination exists"
         );
+    } else if report.is_total_conflict() {
+        eprintln!("warning: the mass functions are in total conflict (κ = 1); the rule still gives the result printed");
     }
     println!("{}", serde_json::to_string(&report)?);
     Ok(ExitCode::SUCCESS)

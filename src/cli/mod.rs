@@ -40,9 +40,19 @@ enum Command {
     Merge(merge::MergeArgs),
     /// Combine belief functions given as JSON and print the result as JSON on stdout.
     ///
-    /// Input: {"frame": N, "rule": "dempster"|"conjunctive", "mass_functions":
-    /// [{"focal": [[0, 5, 7], [1, 2]], "mass": [0.6, 0.4]}, ...]}. Exit status 2 on bad input;
-    /// total conflict prints "conflict_level": "inf" with a warning and exits 0.
+    /// Input: {"frame": N, "rule": RULE, "reliability": A or [A, ...] (optional),
+    /// "mass_functions": [{"focal": [[0, 5, 7], [1, 2]], "mass": [0.6, 0.4]}, ...]}. Every
+    /// function is first discounted by its reliability A (m(X) ← A·m(X), m(Ω) += 1 − A).
+    /// "conflict_mass" κ and "conflict_level" K = −ln(1 − κ) are the conjunctive conflict of the
+    /// (discounted) inputs, exact whatever the order, except for cautious and murphy. RULE and
+    /// where κ goes: dempster (normalised away; no result on total conflict), conjunctive (kept
+    /// on ∅; masses not normalised), yager (moved to the whole frame), dubois_prade (each
+    /// conflicting tuple's product to the union of its sets), pcr6 (each conflicting tuple's
+    /// product back to its sets in proportion to their masses; n-ary), disjunctive (unions; the
+    /// rule creates none, κ is for information), cautious (non-dogmatic inputs, frames of at most
+    /// 20 elements; κ is the result's own mass on ∅, kept there), murphy (the mean combined with
+    /// itself n − 1 times by Dempster's rule; κ and K of that combination). Exit status 2 on bad
+    /// input; K = +∞ prints "conflict_level": "inf" with a warning and exits 0.
     Combine(data::CombineArgs),
     /// Simulate a motion and write a dataset folder (PNG frames, poses.csv, manifest.json).
     Simulate(data::SimulateArgs),

@@ -2,30 +2,20 @@
 //! mass κ and the level of conflict K = ln(1/(1 − κ)).
 //! The engine that does the work is [`super::engine`].
 
-use serde::{Deserialize, Serialize};
-
-use super::engine::{frame_of, run, to_mass_function};
+use super::engine::{frame_of, run, to_mass_function, Mode};
 use super::limits::WorkLimits;
 use super::mass::MassFunction;
+use super::subset::word_count;
 use super::EvidenceError;
 
-/// Combination rule of the `combine` exchange format.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Rule {
-    /// Dempster's rule (normalised orthogonal sum).
-    #[default]
-    Dempster,
-    /// Unnormalised conjunctive rule: the conflict stays on ∅.
-    Conjunctive,
-}
-
-/// Result of Dempster's rule.
+/// Result of a combination rule (Dempster's, or any [`super::Rule`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Combination {
-    /// The orthogonal sum; `None` on total conflict (κ = 1), when it does not exist.
+    /// The combined function; `None` only when the rule has no result (Dempster's rule on total
+    /// conflict, κ = 1).
     pub mass: Option<MassFunction>,
-    /// Conflict mass κ: the mass the unnormalised conjunctive combination puts on ∅.
+    /// Conflict mass κ: for Dempster's rule, the mass the unnormalised conjunctive combination
+    /// puts on ∅ (each [`super::Rule`] states what it is for that rule).
     pub conflict_mass: f64,
     /// Level of conflict K = ln(1/(1 − κ)) ∈ [0, +∞]; `f64::INFINITY` on total conflict, never NaN.
     pub conflict_level: f64,
@@ -58,9 +48,9 @@ pub fn conjunctive(a: &MassFunction, b: &MassFunction) -> Result<MassFunction, E
     conjunctive_all([a, b])
 }
 
-/// Unnormalised conjunctive combination of any number of functions, merging identical
-/// intersections after each step. Masses are not renormalised, so hundreds of strongly
-/// conflicting functions can underflow towards 0; use [`dempster_all`] when that matters.
+/// Unnormalised conjunctive combination of any number of functions: Dempster's combination
+/// scaled back by 1 − κ = e^(−K), with κ on ∅. The level K is exact (see [`dempster_all`]);
+/// a focal set whose unnormalised mass is below the smallest f64 is left out.
 ///
 /// # Errors
 /// [`EvidenceError::NothingToCombine`], [`EvidenceError::FrameMismatch`],
@@ -80,9 +70,33 @@ pub fn conjunctive_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
     limits: &WorkLimits,
 ) -> Result<MassFunction, EvidenceError> {
     let (n, fs) = frame_of(fs)?;
-    // The engine returns a core in conjunctive mode always.
-    run(n, &fs, (false, limits), |out| to_mass_function(out, true))?
-        .ok_or(EvidenceError::NothingToCombine)
+    let c = dempster_all_within(fs, limits)?;
+    Ok(unnormalised(n, &c))
+}
+
+/// The conjunctive combination on a frame of `n` from Dempster's `c`: its function (none on total
+/// conflict) scaled by e^(−K), and κ on ∅ (on the words, so no subset is built).
+pub(super) fn unnormalised(n: usize, c: &Combination) -> MassFunction {
+    let scale = (-c.conflict_level).exp();
+    let kappa = -(-c.conflict_level).exp_m1();
+    let w = word_count(n).max(1);
+    let mut words = Vec::new();
+    let mut mass = Vec::new();
+    if let Some(k) = &c.mass {
+        words.reserve((k.len() + 1) * w);
+        mass.reserve(k.len() + 1);
+        for (s, &m) in k.set_words().zip(k.masses()) {
+            if m * scale > 0.0 {
+                words.extend_from_slice(s);
+                mass.push(m * scale);
+            }
+        }
+    }
+    if kappa > 0.0 {
+        words.resize(words.len() + w, 0);
+        mass.push(kappa);
+    }
+    MassFunction::from_words(n, words, mass)
 }
 
 /// Dempster's rule for two functions.
@@ -116,7 +130,7 @@ pub fn dempster_all_within<'a, I: IntoIterator<Item = &'a MassFunction>>(
     limits: &WorkLimits,
 ) -> Result<Combination, EvidenceError> {
     let (n, fs) = frame_of(fs)?;
-    let done = run(n, &fs, (true, limits), |out| {
+    let done = run(n, &fs, (Mode::Dempster, limits), |out| {
         let level = out.level;
         Combination {
             mass: Some(to_mass_function(out, false)),
@@ -144,7 +158,10 @@ pub fn conflict_level_all<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
 ) -> Result<f64, EvidenceError> {
     let (n, fs) = frame_of(fs)?;
-    Ok(run(n, &fs, (true, &WorkLimits::DEFAULT), |out| out.level)?.unwrap_or(f64::INFINITY))
+    Ok(run(n, &fs, (Mode::Dempster, &WorkLimits::DEFAULT), |out| {
+        out.level
+    })?
+    .unwrap_or(f64::INFINITY))
 }
 
 /// Conflict mass κ between two functions, without building their combination.

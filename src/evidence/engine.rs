@@ -157,15 +157,31 @@ impl Engine {
     /// non-empty intersections.
     fn step(&mut self, cur: &Arena, b: &Arena, out: &mut Arena) -> Result<(f64, f64), OverLimit> {
         match self.w {
-            1 => self.step_w::<1>(cur, b, out),
-            2 => self.step_w::<2>(cur, b, out),
-            3 => self.step_w::<3>(cur, b, out),
-            4 => self.step_w::<4>(cur, b, out),
-            5 => self.step_w::<5>(cur, b, out),
-            6 => self.step_w::<6>(cur, b, out),
-            7 => self.step_w::<7>(cur, b, out),
-            8 => self.step_w::<8>(cur, b, out),
-            _ => self.step_dyn(cur, b, out),
+            1 => self.step_w::<1, false>(cur, b, out),
+            2 => self.step_w::<2, false>(cur, b, out),
+            3 => self.step_w::<3, false>(cur, b, out),
+            4 => self.step_w::<4, false>(cur, b, out),
+            5 => self.step_w::<5, false>(cur, b, out),
+            6 => self.step_w::<6, false>(cur, b, out),
+            7 => self.step_w::<7, false>(cur, b, out),
+            8 => self.step_w::<8, false>(cur, b, out),
+            _ => self.step_dyn::<false>(cur, b, out),
+        }
+    }
+
+    /// As [`Engine::step`] with unions in place of intersections (the disjunctive rule).
+    fn step_or(
+        &mut self,
+        cur: &Arena,
+        b: &Arena,
+        out: &mut Arena,
+    ) -> Result<(f64, f64), OverLimit> {
+        match self.w {
+            1 => self.step_w::<1, true>(cur, b, out),
+            2 => self.step_w::<2, true>(cur, b, out),
+            4 => self.step_w::<4, true>(cur, b, out),
+            7 => self.step_w::<7, true>(cur, b, out),
+            _ => self.step_dyn::<true>(cur, b, out),
         }
     }
 
@@ -212,7 +228,7 @@ impl Engine {
     /// 32 bits and a hash tag in the high 32 bits, so most mismatches are rejected without
     /// touching the arena.
     #[inline(always)]
-    fn insert(
+    fn insert<const LOG: bool>(
         table: &mut [u64],
         mask: usize,
         out: &mut Arena,
@@ -237,7 +253,11 @@ impl Engine {
                 let stored = &out.words[i * w..(i + 1) * w];
                 // Word loop rather than slice equality, which would call memcmp.
                 if stored.iter().zip(x).all(|(a, b)| a == b) {
-                    out.mass[i] += m;
+                    if LOG {
+                        out.mass[i] = log_add(out.mass[i], m);
+                    } else {
+                        out.mass[i] += m;
+                    }
                     return Ok(());
                 }
             }
@@ -245,7 +265,7 @@ impl Engine {
         }
     }
 
-    fn step_w<const W: usize>(
+    fn step_w<const W: usize, const OR: bool>(
         &mut self,
         cur: &Arena,
         b: &Arena,
@@ -260,7 +280,7 @@ impl Engine {
                 let mut x = [0u64; W];
                 let mut any = 0u64;
                 for k in 0..W {
-                    x[k] = a[k] & bw[k];
+                    x[k] = if OR { a[k] | bw[k] } else { a[k] & bw[k] };
                     any |= x[k];
                 }
                 if any == 0 {
@@ -272,13 +292,13 @@ impl Engine {
                     mask = self.grow(out);
                 }
                 kept += ma * mb;
-                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
+                Self::insert::<false>(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
         Ok((empty, kept))
     }
 
-    fn step_dyn(
+    fn step_dyn<const OR: bool>(
         &mut self,
         cur: &Arena,
         b: &Arena,
@@ -293,7 +313,7 @@ impl Engine {
             for (bw, &mb) in b.words.chunks_exact(w).zip(&b.mass) {
                 let mut any = 0u64;
                 for ((xk, ak), bk) in x.iter_mut().zip(a).zip(bw) {
-                    *xk = ak & bk;
+                    *xk = if OR { ak | bk } else { ak & bk };
                     any |= *xk;
                 }
                 if any == 0 {
@@ -305,57 +325,16 @@ impl Engine {
                     mask = self.grow(out);
                 }
                 kept += ma * mb;
-                Self::insert(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
+                Self::insert::<false>(&mut self.table, mask, out, (&x, h, ma * mb), self.max_sets)?;
             }
         }
         Ok((empty, kept))
     }
 }
 
-impl Engine {
-    /// The Dempster step in log scale, for when every kept product underflowed to 0 (two masses
-    /// of 1e-300 on a shared element): out ← the non-empty intersections, with masses relative
-    /// to the largest product. Returns the natural log of that product, or `None` when no pair
-    /// intersects (true total conflict).
-    #[cold]
-    fn step_log(
-        &mut self,
-        cur: &Arena,
-        b: &Arena,
-        out: &mut Arena,
-    ) -> Result<Option<f64>, OverLimit> {
-        let w = self.w;
-        let pairs = || {
-            cur.words
-                .chunks_exact(w)
-                .zip(&cur.mass)
-                .flat_map(move |(a, &ma)| {
-                    (b.words.chunks_exact(w).zip(&b.mass)).filter_map(move |(bw, &mb)| {
-                        let meet = a.iter().zip(bw).any(|(x, y)| x & y != 0);
-                        (meet && ma > 0.0 && mb > 0.0).then(|| (a, bw, ma.ln() + mb.ln()))
-                    })
-                })
-        };
-        let top = pairs().map(|(_, _, l)| l).fold(f64::NEG_INFINITY, f64::max);
-        if !top.is_finite() {
-            return Ok(None);
-        }
-        let mut mask = self.prepare(cur.len() * b.len(), out);
-        let mut x = vec![0u64; w];
-        for (a, bw, l) in pairs() {
-            for ((xk, ak), bk) in x.iter_mut().zip(a).zip(bw) {
-                *xk = ak & bk;
-            }
-            let h = hash_words(&x, &self.keys);
-            if 2 * out.len() >= mask {
-                mask = self.grow(out);
-            }
-            let m = (l - top).exp();
-            Self::insert(&mut self.table, mask, out, (&x, h, m), self.max_sets)?;
-        }
-        Ok(Some(top))
-    }
-}
+#[path = "engine_log.rs"]
+mod log;
+use log::log_add;
 
 pub(super) fn frame_of<'a, I: IntoIterator<Item = &'a MassFunction>>(
     fs: I,
@@ -378,40 +357,61 @@ pub(super) fn frame_of<'a, I: IntoIterator<Item = &'a MassFunction>>(
 pub(super) struct Outcome<'s> {
     n: usize,
     arena: &'s Arena,
-    /// Mass on ∅ (conjunctive mode only).
+    /// Mass on ∅ (disjunctive mode only: the inputs' mass on ∅ that met only ∅).
     empty: f64,
     /// Accumulated level of conflict (Dempster mode only).
     pub(super) level: f64,
 }
 
-/// Combine; in Dempster mode (`normalise`) the running result is renormalised after every step and
-/// the step's level of conflict added (Theorem 4.3), which also keeps masses from underflowing.
-/// Returns `None` in Dempster mode on total conflict, else `finish` of the outcome.
+/// How [`run`] combines.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub(super) enum Mode {
+    /// Dempster's rule: renormalised after every step, the steps' levels added.
+    Dempster,
+    /// The unnormalised disjunctive rule (unions; the total mass stays 1).
+    Disjunctive,
+}
+
+/// The smallest product of masses the fast Dempster step may form: below it a product would be
+/// subnormal or 0 and its focal set lost or imprecise, so the rest of the combination runs in
+/// log scale.
+const SMALLEST_PRODUCT: f64 = f64::MIN_POSITIVE;
+
+/// Combine in `mode`. In Dempster mode the running result is renormalised after every step and
+/// the step's level of conflict added (Theorem 4.3); when a product of masses could leave the
+/// normal range, the rest runs in log scale, so no focal set is lost to underflow and the level
+/// is exact whatever the order. Returns `None` in Dempster mode on total conflict, else `finish`
+/// of the outcome.
 ///
 /// # Errors
 /// [`EvidenceError::WorkLimit`] when an input or a running result exceeds `limits`.
 pub(super) fn run<R>(
     n: usize,
     fs: &[&MassFunction],
-    (normalise, limits): (bool, &WorkLimits),
+    (mode, limits): (Mode, &WorkLimits),
     finish: impl FnOnce(Outcome<'_>) -> R,
 ) -> Result<Option<R>, EvidenceError> {
     let mut scratch = SCRATCH.with(|c| c.take()).unwrap_or_default();
     let engine = Engine::new(n, std::mem::take(&mut scratch.table), *limits);
-    let result = run_in(&mut scratch, engine, fs, normalise, finish);
+    let result = run_in(&mut scratch, engine, fs, mode, finish);
     scratch.trim();
     SCRATCH.with(|c| c.set(Some(scratch)));
     result
+}
+
+fn min_mass(a: &Arena) -> f64 {
+    a.mass.iter().fold(f64::INFINITY, |m, &x| m.min(x))
 }
 
 fn run_in<R>(
     scratch: &mut Scratch,
     mut engine: Engine,
     fs: &[&MassFunction],
-    normalise: bool,
+    mode: Mode,
     finish: impl FnOnce(Outcome<'_>) -> R,
 ) -> Result<Option<R>, EvidenceError> {
     let n = fs.first().map_or(0, |f| f.frame_size());
+    let normalise = mode == Mode::Dempster;
     let over = |engine: Engine, scratch_table: &mut Vec<u64>| {
         let e = engine.over();
         *scratch_table = engine.table;
@@ -430,72 +430,110 @@ fn run_in<R>(
     let mut level = 0.0;
     // In Dempster mode the running result has total mass `s` instead of 1; rather than rescale
     // its many focal sets after every step, the next function's few masses are scaled by 1/s
-    // (same products up to rounding, and masses still cannot underflow), and only the final
-    // result is rescaled.
+    // (same products up to rounding), and only the final result is rescaled.
     let mut s = 1.0;
+    // Whether `cur` holds normalised log masses (Dempster mode only).
+    let mut logged = false;
+    let mut low = 0.0;
     for (i, f) in fs.iter().enumerate() {
         if i == 0 {
             empty = cur.load(f);
             s = cur.mass.iter().sum();
+            low = min_mass(cur);
         } else {
             let b_empty = b.load(f);
             if normalise {
-                for m in &mut b.mass {
-                    *m /= s;
+                if !logged {
+                    // `low` bounds the running masses from below; the exact minimum is looked
+                    // up only when the bound is too low, so the usual step costs no pass.
+                    let bs = min_mass(b) / s;
+                    if low * bs < SMALLEST_PRODUCT {
+                        low = min_mass(cur);
+                    }
+                    if low * bs < SMALLEST_PRODUCT {
+                        for m in &mut cur.mass {
+                            *m = m.ln() - s.ln();
+                        }
+                        logged = true;
+                    } else {
+                        low *= bs;
+                    }
                 }
-                let Ok((_, kept)) = engine.step(cur, b, next) else {
-                    return Err(over(engine, scratch_table));
-                };
-                s = kept;
-                if s <= 0.0 && next.len() > 0 {
-                    // Intersections exist but their products underflowed: redo in log scale,
-                    // adding the step's level here and leaving a normalised running result.
-                    let Ok(logged) = engine.step_log(cur, b, next) else {
+                if logged {
+                    for m in &mut b.mass {
+                        *m = m.ln();
+                    }
+                    let Ok(total) = engine.step_log(cur, b, next) else {
                         return Err(over(engine, scratch_table));
                     };
-                    if let Some(top) = logged {
-                        let sum: f64 = next.mass.iter().sum();
-                        for m in &mut next.mass {
-                            *m /= sum;
-                        }
-                        level += -(top + sum.ln());
-                        s = 1.0;
+                    let Some(total) = total else {
+                        *scratch_table = engine.table;
+                        return Ok(None);
+                    };
+                    for m in &mut next.mass {
+                        *m -= total;
                     }
+                    level += (-total).max(0.0);
+                } else {
+                    for m in &mut b.mass {
+                        *m /= s;
+                    }
+                    let Ok((_, kept)) = engine.step(cur, b, next) else {
+                        return Err(over(engine, scratch_table));
+                    };
+                    s = kept;
                 }
             } else {
                 let b_total: f64 = b_empty + b.mass.iter().sum::<f64>();
                 let cur_total: f64 = cur.mass.iter().sum();
                 let total = (empty + cur_total) * b_total;
-                let Ok((conflict, kept)) = engine.step(cur, b, next) else {
+                let Ok((conflict, kept)) = engine.step_or(cur, b, next) else {
                     return Err(over(engine, scratch_table));
                 };
-                empty = empty * b_total + cur_total * b_empty + conflict;
-                // The masses sum to `total` (1 for mass functions): when the conflict is the
-                // larger part, total − kept is the more precise (a running sum of 17 conflicts
-                // rounded to 1.000000000000006 beside a finite level).
+                empty = empty * b_empty + conflict;
+                // The masses sum to `total` (1 for mass functions): when ∅ is the larger part,
+                // total − kept is the more precise.
                 if empty > 0.5 * total {
                     empty = (total - kept).clamp(0.0, 1.0);
                 }
             }
             std::mem::swap(cur, next);
         }
-        if normalise {
+        if normalise && !logged {
             if cur.len() == 0 || s <= 0.0 {
                 *scratch_table = engine.table;
                 return Ok(None);
             }
             level += (-s.ln()).max(0.0);
-            // A running mass this small would overflow 1/s on the next function (a subnormal
-            // kept mass gave inf/inf): rescale the running result itself.
+            // A running mass this small would overflow 1/s on the next function: rescale the
+            // running result itself.
             if s < RESCALE_BELOW {
                 for m in &mut cur.mass {
                     *m /= s;
                 }
+                low /= s;
                 s = cur.mass.iter().sum();
             }
         }
     }
     *scratch_table = engine.table;
+    if logged {
+        // Back from logs: sets whose mass is below the smallest f64 are dropped from the result
+        // (the level already counts them).
+        let w = engine.w;
+        let mut kept = 0;
+        for k in 0..cur.mass.len() {
+            let m = cur.mass[k].exp();
+            if m > 0.0 {
+                cur.mass[kept] = m;
+                cur.words.copy_within(k * w..(k + 1) * w, kept * w);
+                kept += 1;
+            }
+        }
+        cur.mass.truncate(kept);
+        cur.words.truncate(kept * w);
+        s = cur.mass.iter().sum();
+    }
     if normalise {
         for m in &mut cur.mass {
             *m /= s;

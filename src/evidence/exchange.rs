@@ -1,19 +1,23 @@
 //! The JSON exchange format of `evitrack combine FILE.json`, as library code.
 //!
-//! Input: `{"frame": n, "rule": "dempster" | "conjunctive", "mass_functions": [{"focal": [[i, …], …],
-//! "mass": [m, …]}, …]}` (unknown fields are errors). Output: `{"focal": […], "mass": […],
-//! "conflict_mass": κ, "conflict_level": K, "plausibility": [one value per element]}`, focal sets
-//! sorted by decreasing mass (ties: lexicographic element lists). On total conflict
-//! `conflict_level` is the string `"inf"`, `focal` and `mass` are empty and every plausibility is 0.
-//! Under the conjunctive rule the output is the unnormalised function: masses and plausibilities
-//! are not divided by 1 − κ, and the mass on ∅ is reported as `conflict_mass` only.
+//! Input: `{"frame": n, "rule": RULE, "reliability": α or [α, …] (optional), "mass_functions":
+//! [{"focal": [[i, …], …], "mass": [m, …]}, …]}` (unknown fields are errors); RULE is one of
+//! [`Rule::name`] (`dempster`, `conjunctive`, `yager`, `dubois_prade`, `pcr6`, `disjunctive`,
+//! `cautious`, `murphy`), and every function is discounted by its reliability first. Output:
+//! `{"focal": […], "mass": […], "conflict_mass": κ, "conflict_level": K, "plausibility": [one value
+//! per element]}`, focal sets sorted by decreasing mass (ties: lexicographic element lists); κ and
+//! K as each [`Rule`] states. `conflict_level` is the string `"inf"` when K = +∞; when the rule
+//! has no result (Dempster's on total conflict, or nothing but ∅ left) `focal` and `mass` are
+//! empty and every plausibility is 0. Under the conjunctive and cautious rules the output is
+//! unnormalised: masses and plausibilities are not divided by 1 − κ, and the mass on ∅ is
+//! reported as `conflict_mass` only.
 
 use serde::{Deserialize, Serialize};
 
-use super::combine::{conjunctive_all_within, dempster_all_within, Rule};
 use super::level::ConflictLevel;
 use super::limits::{WorkLimit, WorkLimits};
 use super::mass::{MassFunction, MASS_TOLERANCE};
+use super::rules::{combine_all_within, discount_all, Rule};
 use super::subset::{word_count, Subset};
 use super::EvidenceError;
 
@@ -25,8 +29,32 @@ pub struct CombineInput {
     pub frame: usize,
     /// Combination rule.
     pub rule: Rule,
+    /// Reliabilities α for Shafer's discounting before the rule: one for every function, or one
+    /// per function; none keeps the functions as given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reliability: Option<Reliability>,
     /// The mass functions to combine.
     pub mass_functions: Vec<RawMassFunction>,
+}
+
+/// The reliabilities of a combine input: one α or one per function.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Reliability {
+    /// One α for every function.
+    All(f64),
+    /// One α per function.
+    Each(Vec<f64>),
+}
+
+impl Reliability {
+    /// The values, as [`discount_all`] takes them.
+    pub fn values(&self) -> &[f64] {
+        match self {
+            Reliability::All(a) => std::slice::from_ref(a),
+            Reliability::Each(v) => v,
+        }
+    }
 }
 
 /// One mass function of the input, unvalidated.
@@ -59,6 +87,11 @@ impl CombineReport {
     /// Whether the functions were in total conflict (the CLI warns and exits with status 0).
     pub fn is_total_conflict(&self) -> bool {
         self.conflict_level == ConflictLevel::Infinite
+    }
+
+    /// Whether the rule gave a result (every rule but Dempster's does on total conflict).
+    pub fn has_result(&self) -> bool {
+        !self.focal.is_empty()
     }
 }
 
@@ -194,32 +227,22 @@ pub fn combine_input_within(
         .enumerate()
         .map(|(i, raw)| validate(input.frame, i, raw))
         .collect::<Result<Vec<_>, _>>()?;
-    let (result, conflict_mass, level) = match input.rule {
-        Rule::Dempster => {
-            let c = dempster_all_within(&fs, &limits.work)?;
-            (c.mass, c.conflict_mass, c.conflict_level)
-        }
-        Rule::Conjunctive => {
-            let m = conjunctive_all_within(&fs, &limits.work)?;
-            let kappa = m.empty_mass();
-            let kept: f64 = m
-                .focal()
-                .filter(|(s, _)| !s.is_empty())
-                .map(|(_, x)| x)
-                .sum();
-            if kept > 0.0 {
-                (Some(m), kappa, (-kept.ln()).max(0.0))
-            } else {
-                (None, 1.0, f64::INFINITY)
-            }
-        }
+    let fs = match &input.reliability {
+        Some(r) => discount_all(&fs, r.values())?,
+        None => fs,
     };
+    let c = combine_all_within(input.rule, &fs, &limits.work)?;
+    let (conflict_mass, level) = (c.conflict_mass, c.conflict_level);
+    // A result with nothing but ∅ (the conjunctive rule on total conflict) lists nothing.
+    let result = c
+        .mass
+        .filter(|m| m.focal().any(|(s, x)| !s.is_empty() && x > 0.0));
     let Some(m) = result else {
         return Ok(CombineReport {
             focal: Vec::new(),
             mass: Vec::new(),
             conflict_mass,
-            conflict_level: ConflictLevel::Infinite,
+            conflict_level: ConflictLevel::from_value(level),
             plausibility: vec![0.0; input.frame],
         });
     };
@@ -266,9 +289,15 @@ pub fn combine_json_within(
     text: &str,
     limits: &CombineLimits,
 ) -> Result<CombineReport, EvidenceError> {
-    let input: CombineInput =
-        serde_json::from_str(text).map_err(|e| EvidenceError::Json(e.to_string()))?;
-    combine_input_within(&input, limits)
+    combine_input_within(&parse_input(text)?, limits)
+}
+
+/// Parse the text of a `combine` input file, without validating it.
+///
+/// # Errors
+/// [`EvidenceError::Json`] (with line and column) for malformed JSON or unknown fields.
+pub fn parse_input(text: &str) -> Result<CombineInput, EvidenceError> {
+    serde_json::from_str(text).map_err(|e| EvidenceError::Json(e.to_string()))
 }
 
 #[cfg(test)]

@@ -13,6 +13,8 @@ pub struct WorkLimits {
     pub focal_sets: usize,
     /// Bytes of set storage any one function may need: focal sets × ⌈frame size / 64⌉ × 8.
     pub set_bytes: usize,
+    /// Tuples of focal sets (one per function) a rule that visits each tuple may visit: PCR6.
+    pub tuples: usize,
 }
 
 impl WorkLimits {
@@ -20,6 +22,7 @@ impl WorkLimits {
     pub const DEFAULT: WorkLimits = WorkLimits {
         focal_sets: 1 << 20,
         set_bytes: 1 << 30,
+        tuples: 1 << 26,
     };
 
     /// Whether `sets` sets of `words` words each are within the limits; which one is not.
@@ -34,6 +37,17 @@ impl WorkLimits {
             return Err(EvidenceError::WorkLimit {
                 limit: WorkLimit::SetBytes,
                 max: self.set_bytes,
+            });
+        }
+        Ok(())
+    }
+
+    /// Whether `tuples` tuples of focal sets are within the limits.
+    pub(crate) fn check_tuples(&self, tuples: usize) -> Result<(), EvidenceError> {
+        if tuples > self.tuples {
+            return Err(EvidenceError::WorkLimit {
+                limit: WorkLimit::Tuples,
+                max: self.tuples,
             });
         }
         Ok(())
@@ -58,6 +72,8 @@ pub enum WorkLimit {
     FocalSets,
     /// [`WorkLimits::set_bytes`].
     SetBytes,
+    /// [`WorkLimits::tuples`].
+    Tuples,
     /// The output size of the exchange format ([`crate::evidence::exchange::CombineLimits`]).
     OutputElements,
 }
@@ -67,6 +83,7 @@ impl std::fmt::Display for WorkLimit {
         f.write_str(match self {
             WorkLimit::FocalSets => "focal sets in one function",
             WorkLimit::SetBytes => "bytes of focal-set storage in one function",
+            WorkLimit::Tuples => "tuples of focal sets (one per function) to visit",
             WorkLimit::OutputElements => "elements listed in the output's focal sets",
         })
     }

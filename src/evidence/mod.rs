@@ -1,6 +1,7 @@
 //! Dempster–Shafer evidence algebra: subsets of finite frames, mass functions, Dempster's rule and
-//! the level of conflict, refinings between frames, constructors from likelihoods, discounting and
-//! decisions (relative plausibility, pignistic probability, pointwise estimates).
+//! every other combination rule ([`combine_all`]), the level of conflict, refinings between
+//! frames, constructors from likelihoods, discounting and decisions (relative plausibility,
+//! pignistic probability, pointwise estimates).
 //!
 //! This room is a leaf: it knows nothing of images, robots or the rest of the crate, so every other
 //! room can build on it and it can be tested on its own.
@@ -14,12 +15,12 @@ mod level;
 mod limits;
 mod mass;
 mod refining;
+mod rules;
 mod subset;
 
 pub use combine::{
     conflict, conflict_level_all, conjunctive, conjunctive_all, conjunctive_all_within,
     contour_product, dempster, dempster_all, dempster_all_within, level_of_conflict, Combination,
-    Rule,
 };
 pub use construct::{from_likelihoods, Constructor, LikelihoodIssue, Measurement};
 pub use decision::{pignistic, pointwise_estimate, relative_plausibility};
@@ -28,6 +29,7 @@ pub use level::ConflictLevel;
 pub use limits::{WorkLimit, WorkLimits};
 pub use mass::{MassFunction, MASS_TOLERANCE};
 pub use refining::Refining;
+pub use rules::{combine_all, combine_all_within, discount_all, Rule, MAX_CAUTIOUS_FRAME};
 pub use subset::{Iter, Subset, INLINE_BITS, MAX_FRAME};
 
 /// Everything that can go wrong in the evidence algebra.
@@ -159,6 +161,30 @@ pub enum EvidenceError {
         /// Which limit.
         limit: WorkLimit,
         /// Its value.
+        max: usize,
+    },
+    /// A rule that needs normalised inputs was given a function with mass on ∅.
+    #[error("mass function {function} puts mass on the empty set; the {rule} rule needs normalised functions (combine it with Dempster's or the conjunctive rule)")]
+    UnnormalisedInput {
+        /// The rule's name.
+        rule: &'static str,
+        /// Index of the function.
+        function: usize,
+    },
+    /// The cautious rule was given a dogmatic function (no mass on the whole frame).
+    #[error("mass function {function} is dogmatic (no mass on the whole frame); the cautious rule needs m(Ω) > 0: discount it first (a reliability below 1)")]
+    Dogmatic {
+        /// Index of the function.
+        function: usize,
+    },
+    /// A rule that works on every subset of the frame was given a larger frame than it allows.
+    #[error("the {rule} rule works on all 2^n subsets of the frame and takes frames of at most {max} elements, not {frame}")]
+    FrameTooLargeForRule {
+        /// The rule's name.
+        rule: &'static str,
+        /// The frame size.
+        frame: usize,
+        /// The largest frame it takes.
         max: usize,
     },
     /// The combine input is not valid JSON of the expected shape.

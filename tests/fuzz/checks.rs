@@ -15,6 +15,7 @@ const LIMITS: CombineLimits = CombineLimits {
     work: WorkLimits {
         focal_sets: 4096,
         set_bytes: 1 << 22,
+        tuples: 1 << 16,
     },
     output_elements: 1 << 16,
 };
