@@ -24,6 +24,32 @@ pub(crate) fn evitrack(args: &[&str], stdin: &str) -> Output {
     child.wait_with_output().expect("evitrack finishes")
 }
 
+/// `evitrack COMMAND SCENARIO --out OUT`, asserted to exit with `code` (stderr in the message).
+pub(crate) fn run_expecting(
+    command: &str,
+    scenario: &std::path::Path,
+    out: &std::path::Path,
+    code: i32,
+) -> Output {
+    let output = evitrack(
+        &[
+            command,
+            scenario.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        "",
+    );
+    assert_eq!(
+        output.status.code(),
+        Some(code),
+        "{command} {}: {}",
+        scenario.display(),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
+}
+
 /// A quick scenario: a 2 mm sample mesh and a 20-frame circle, plus `extra` TOML.
 fn small_scenario(name: &str, extra: &str) -> String {
     format!(

@@ -141,22 +141,8 @@ fn no_output_file_of_any_scenario_holds_an_undocumented_non_finite_number() {
         let quick = dir.path().join(format!("{name}.toml"));
         std::fs::write(&quick, shrunk(&std::fs::read_to_string(&path).unwrap())).unwrap();
         let out_dir = dir.path().join(name);
-        let out = evitrack(
-            &[
-                "sweep",
-                quick.to_str().unwrap(),
-                "--out",
-                out_dir.to_str().unwrap(),
-            ],
-            "",
-        );
         // Exit 1 would be a missed expectation, which is not this test's concern.
-        assert_eq!(
-            out.status.code(),
-            Some(0),
-            "{name}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        run_expecting("sweep", &quick, &out_dir, 0);
         files += scan(&out_dir, &mut bad);
     }
     assert!(bad.is_empty(), "{bad:#?}");
@@ -180,21 +166,7 @@ fn faults_beyond_the_double_range_write_only_documented_infinities() {
         let scenario = dir.path().join(format!("{name}.toml"));
         std::fs::write(&scenario, text).unwrap();
         let out_dir = dir.path().join("out");
-        let out = evitrack(
-            &[
-                "run",
-                scenario.to_str().unwrap(),
-                "--out",
-                out_dir.to_str().unwrap(),
-            ],
-            "",
-        );
-        assert_eq!(
-            out.status.code(),
-            Some(0),
-            "{name}: {}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        run_expecting("run", &scenario, &out_dir, 0);
         scan(&out_dir.join(name), &mut bad);
     }
     assert!(bad.is_empty(), "{bad:#?}");
