@@ -5,21 +5,12 @@
 
 use std::collections::HashMap;
 
-use evitrack::experiment::{run_all, Workbench};
 use evitrack::report::{ConfidenceSummary, RunSummary};
-use evitrack::scenario::ScenarioSet;
 
 fn confidence_sweep() -> HashMap<String, RunSummary> {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/confidence.toml");
-    let set = ScenarioSet::load(std::path::Path::new(path)).expect("confidence.toml is valid");
-    let bench = Workbench::new();
-    run_all(&set.variants, 2, &bench, &|_, _, _, _| {})
+    crate::run_every_variant("confidence.toml")
         .into_iter()
-        .zip(&set.variants)
-        .map(|(result, variant)| {
-            let output = result.unwrap_or_else(|e| panic!("variant {} failed: {e}", variant.name));
-            (variant.name.clone(), output.summary)
-        })
+        .map(|(name, output)| (name, output.summary))
         .collect()
 }
 

@@ -4,22 +4,12 @@
 use std::collections::HashMap;
 use std::process::Command;
 
-use evitrack::experiment::{run_all, RunOutput, Workbench};
+use evitrack::experiment::RunOutput;
 use evitrack::report::{FaultSummary, MethodSummary};
-use evitrack::scenario::ScenarioSet;
 
 fn faults_sweep() -> HashMap<String, RunOutput> {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/faults.toml");
-    let set =
-        ScenarioSet::load(std::path::Path::new(path)).expect("scenarios/faults.toml is valid");
-    let bench = Workbench::new();
-    run_all(&set.variants, 2, &bench, &|_, _, _, _| {})
+    crate::run_every_variant("faults.toml")
         .into_iter()
-        .zip(&set.variants)
-        .map(|(result, variant)| {
-            let output = result.unwrap_or_else(|e| panic!("variant {} failed: {e}", variant.name));
-            (variant.name.clone(), output)
-        })
         .collect()
 }
 

@@ -347,17 +347,11 @@ fn best_model_and_its_baselines_meet_their_expectations() {
     assert!(close(region.mean_area, 0.001811), "{region:?}");
 }
 
-/// Every variant of a scenario file, run on two threads, by name.
+/// Every variant of a scenario file, run on two threads, in the file's order.
 fn run_file(file: &str) -> Vec<RunSummary> {
-    let path = format!("{}/scenarios/{file}", env!("CARGO_MANIFEST_DIR"));
-    let set = ScenarioSet::load(std::path::Path::new(&path)).unwrap();
-    run_all(&set.variants, 2, &Workbench::new(), &|_, _, _, _| {})
+    crate::run_every_variant(file)
         .into_iter()
-        .zip(&set.variants)
-        .map(|(r, v)| {
-            r.unwrap_or_else(|e| panic!("{} failed: {e}", v.name()))
-                .summary
-        })
+        .map(|(_, output)| output.summary)
         .collect()
 }
 
