@@ -132,6 +132,31 @@ fn gp_recovers_a_linear_map() {
 }
 
 #[test]
+fn gp_scales_each_pose_coordinate_by_its_own_spread() {
+    // A 19 × 4 mm strip: x and y spread differ by almost 5×, so an output scaled by the other
+    // coordinate's spread misses by millimetres (every square mesh hides it).
+    let side = 14;
+    let poses: Vec<[f64; 2]> = (0..side * 4)
+        .map(|i| {
+            let (r, c) = (i / side, i % side);
+            [-9.5 + c as f64 * 19.0 / 13.0, 46.0 + r as f64 * 4.0 / 3.0]
+        })
+        .collect();
+    let data = Data {
+        names: names(4),
+        rows: rows(&poses, linear),
+        poses,
+    };
+    let gp = Gp::fit(&GpSettings::default(), &data.training()).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for _ in 0..50 {
+        let truth = [rng.random_range(-9.0..9.0), rng.random_range(46.5..49.5)];
+        let e = error(&gp.estimate(&linear(truth)).unwrap(), truth);
+        assert!(e < 0.01, "{truth:?}: {e} mm");
+    }
+}
+
+#[test]
 fn gp_recovers_a_smooth_nonlinear_map() {
     let data = Data::new(14, smooth);
     let gp = Gp::fit(&GpSettings::default(), &data.training()).unwrap();
