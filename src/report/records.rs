@@ -12,7 +12,7 @@ use crate::evidence::ConflictLevel;
 use crate::faults::FrameFaults;
 use crate::model::EvidentialModel;
 use crate::planar::distance;
-use crate::scenario::{Expectations, MethodExpectations};
+use crate::scenario::{Expectations, MeasuredFigures, MethodExpectations};
 
 /// One tracked frame of a test motion, by one method.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -395,6 +395,7 @@ impl RunSummary {
     /// top-level expectations apply to the evidential method; `expect.methods.NAME` to NAME.
     pub fn regressions(&self) -> Vec<String> {
         let mut missed = Vec::new();
+        let bands = self.expect.bands_hold_for(self.seed);
         let mut check = |name: &str, limits: &MethodExpectations| {
             let Some(m) = self.method(name) else {
                 missed.push(format!(
@@ -403,77 +404,22 @@ impl RunSummary {
                 ));
                 return;
             };
-            if let Some(limit) = limits.max_mean_error {
-                match &m.error {
-                    Some(stats) if stats.mean <= limit => {}
-                    Some(stats) => missed.push(format!(
-                        "{} ({name}): mean error {:.4} mm exceeds the expected maximum {limit} mm",
-                        self.scenario, stats.mean
-                    )),
-                    None => missed.push(format!(
-                        "{} ({name}): no frame has an estimate, expected a mean error ≤ {limit} mm",
-                        self.scenario
-                    )),
-                }
-            }
-            if let Some(limit) = limits.max_missing_share {
-                let share = m.frames_without_estimate as f64 / self.frames.max(1) as f64;
-                if share > limit {
-                    missed.push(format!(
-                        "{} ({name}): {:.1}% of frames have no estimate, expected at most {:.1}%",
-                        self.scenario,
-                        100.0 * share,
-                        100.0 * limit
-                    ));
-                }
-            }
             let faults = m.faults.as_ref();
-            if let Some(limit) = limits.max_corrupted_mean_error {
-                match faults.and_then(|f| f.error_corrupted) {
-                    Some(stats) if stats.mean <= limit => {}
-                    found => missed.push(format!(
-                        "{} ({name}): mean error on corrupted frames {} exceeds the expected \
-                         maximum {limit} mm",
-                        self.scenario,
-                        found.map_or("(none measured)".into(), |s| format!("{:.4} mm", s.mean))
-                    )),
-                }
-            }
-            if let Some(limit) = limits.min_detection_auc {
-                match faults.and_then(|f| f.detection_auc) {
-                    Some(auc) if auc >= limit => {}
-                    found => missed.push(format!(
-                        "{} ({name}): detection AUC {} is below the expected minimum {limit}",
-                        self.scenario,
-                        found.map_or("(none measured)".into(), |a| format!("{a:.4}"))
-                    )),
-                }
-            }
             let confidence = m.confidence.as_ref();
             let corrupted = faults.map_or(0, |f| f.corrupted_frames);
             let clean = self.frames.saturating_sub(corrupted).max(1);
-            let measured = [
-                confidence.and_then(|c| c.coverage_clean),
-                confidence.and_then(|c| c.coverage_clean),
-                confidence.and_then(|c| c.coverage_corrupted),
-                confidence.map(|c| c.abstained_clean as f64 / clean as f64),
-                confidence.map(|c| c.all.aurc),
-                confidence.map(|c| c.all.aurc),
-            ];
-            for ((what, limit, lower), found) in
-                limits.confidence_limits().into_iter().zip(measured)
-            {
-                let Some(limit) = limit else { continue };
-                let holds = found.is_some_and(|v| if lower { v >= limit } else { v <= limit });
-                if !holds {
-                    missed.push(format!(
-                        "{} ({name}): {what} {} is {} the expected {} {limit}",
-                        self.scenario,
-                        found.map_or("(none measured)".into(), |v| format!("{v:.4}")),
-                        if lower { "below" } else { "above" },
-                        if lower { "minimum" } else { "maximum" },
-                    ));
-                }
+            let measured = MeasuredFigures {
+                mean_error: m.error.map(|s| s.mean),
+                missing_share: m.frames_without_estimate as f64 / self.frames.max(1) as f64,
+                corrupted_mean_error: faults.and_then(|f| f.error_corrupted).map(|s| s.mean),
+                detection_auc: faults.and_then(|f| f.detection_auc),
+                coverage: confidence.and_then(|c| c.coverage_clean),
+                corrupted_coverage: confidence.and_then(|c| c.coverage_corrupted),
+                abstained_share: confidence.map(|c| c.abstained_clean as f64 / clean as f64),
+                aurc: confidence.map(|c| c.all.aurc),
+            };
+            for miss in limits.misses(&measured, bands) {
+                missed.push(format!("{} ({name}): {miss}", self.scenario));
             }
         };
         let top = self.expect.evidential();
@@ -542,11 +488,15 @@ pub(super) mod tests {
         };
         let missed = summary.regressions();
         assert_eq!(missed.len(), 4, "{missed:?}");
-        assert!(missed[0].contains("(evidential): mean error 3.0000 mm exceeds"));
-        assert!(missed[1].contains("(evidential): 50.0% of frames have no estimate"));
+        assert!(
+            missed[0].contains("(evidential): mean error 3.0000 is above the expected maximum 2.5")
+        );
+        assert!(missed[1].contains(
+            "(evidential): share of frames without an estimate 0.5000 is above the expected maximum 0.25"
+        ));
         // BTreeMap order: gp before knn.
         assert!(missed[2].contains("method `gp`, which did not run"));
-        assert!(missed[3].contains("(knn): mean error 0.6000 mm exceeds the expected maximum 0.5"));
+        assert!(missed[3].contains("(knn): mean error 0.6000 is above the expected maximum 0.5"));
         let mut relaxed = summary.clone();
         relaxed.expect = Expectations {
             max_mean_error: Some(3.0),

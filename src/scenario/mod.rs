@@ -400,24 +400,8 @@ impl Scenario {
                     )));
                 }
             }
-            positive(limits.max_mean_error, &format!("{prefix}.max_mean_error"))?;
-            positive(
-                limits.max_corrupted_mean_error,
-                &format!("{prefix}.max_corrupted_mean_error"),
-            )?;
-            for (value, field) in [
-                (limits.max_missing_share, "max_missing_share"),
-                (limits.min_detection_auc, "min_detection_auc"),
-            ] {
-                if let Some(share) = value.filter(|v| !(0.0..=1.0).contains(v)) {
-                    return Err(invalid(format!(
-                        "`{prefix}.{field}` must lie in [0, 1], not {share}"
-                    )));
-                }
-            }
-            if (limits.max_corrupted_mean_error.is_some() || limits.min_detection_auc.is_some())
-                && self.faults.is_empty()
-            {
+            limits.check(&prefix).map_err(invalid)?;
+            if limits.needs_faults() && self.faults.is_empty() {
                 return Err(invalid(format!(
                     "`{prefix}`: limits on corrupted frames need [[faults]]"
                 )));
@@ -558,7 +542,7 @@ pub(crate) fn seed_too_large(seed: u64) -> String {
 mod expect;
 mod sweep;
 
-pub use expect::{Expectations, MethodExpectations};
+pub use expect::{Expectations, MeasuredFigures, MethodExpectations, DEFAULT_TOLERANCE};
 pub use sweep::{
     Comparison, FindingSpec, ScenarioSet, SeedList, Side, Sweep, VariantSpec, MAX_RUNS,
     MAX_VARIANTS,
