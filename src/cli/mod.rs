@@ -3,6 +3,7 @@
 mod data;
 mod merge;
 mod model;
+mod producer;
 mod programs;
 mod runs;
 mod sweep;

@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 
+use super::producer::Producer;
 use super::tables::print_tables;
 use super::{ensure_writable, fmt_mm, load_scenarios};
 use evitrack::experiment::{self, Workbench};
@@ -109,7 +110,8 @@ pub fn run(args: &RunArgs) -> Result<ExitCode> {
         bars.update(0, stage, done, total)
     });
     bars.finish();
-    let output = output.with_context(|| format!("running scenario `{}`", scenario.name()))?;
+    let mut output = output.with_context(|| format!("running scenario `{}`", scenario.name()))?;
+    output.producer = Some(Producer::of(&scenario)?.to_json());
     let written = write_run(&dir, &output, args.timings)?;
     print_tables(&[&output.summary]);
     for m in &output.summary.methods {

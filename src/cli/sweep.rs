@@ -8,6 +8,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 
 use super::ensure_writable;
+use super::producer::Producer;
 use super::runs::StageBars;
 use super::tables::{evidential_of, print_tables, seed_tables, states_text};
 use evitrack::experiment::{self, Workbench};
@@ -85,16 +86,38 @@ struct SweepState {
     failures: Vec<Option<String>>,
 }
 
-/// The summary of `run` if `dir` holds its finished results: `results.json` of its name and seed
-/// beside the same `scenario.toml`.
-fn finished_run(dir: &Path, run: &CheckedScenario) -> Option<RunSummary> {
-    let scenario = std::fs::read_to_string(dir.join(report::SCENARIO_FILE)).ok()?;
-    if scenario != run.to_toml().ok()? {
-        return None;
+/// What a run's folder holds of an earlier sweep.
+enum Earlier {
+    /// Nothing finished of this scenario and seed.
+    Absent,
+    /// Its finished results, written by this program: kept.
+    Kept(Box<RunSummary>),
+    /// Finished results that another program wrote (why): run again.
+    Stale(String),
+}
+
+/// Whether `dir` holds the finished results of `run` (`results.json` of its name and seed beside
+/// the same `scenario.toml`), and whether `producer` wrote them.
+fn earlier_run(dir: &Path, run: &CheckedScenario, producer: &Producer) -> Earlier {
+    let finished = || {
+        let scenario = std::fs::read_to_string(dir.join(report::SCENARIO_FILE)).ok()?;
+        if scenario != run.to_toml().ok()? {
+            return None;
+        }
+        let text = std::fs::read_to_string(dir.join(report::RESULTS_FILE)).ok()?;
+        let summary: RunSummary = serde_json::from_str(&text).ok()?;
+        (summary.scenario == run.name() && summary.seed == run.seed).then_some(summary)
+    };
+    let Some(summary) = finished() else {
+        return Earlier::Absent;
+    };
+    let earlier = std::fs::read_to_string(dir.join(report::PRODUCER_FILE))
+        .ok()
+        .and_then(|text| serde_json::from_str(&text).ok());
+    match producer.differs_from(earlier.as_ref()) {
+        None => Earlier::Kept(Box::new(summary)),
+        Some(why) => Earlier::Stale(why),
     }
-    let text = std::fs::read_to_string(dir.join(report::RESULTS_FILE)).ok()?;
-    let summary: RunSummary = serde_json::from_str(&text).ok()?;
-    (summary.scenario == run.name() && summary.seed == run.seed).then_some(summary)
 }
 
 #[derive(Debug, Args)]
@@ -122,7 +145,8 @@ pub struct SweepArgs {
     #[arg(long)]
     shard: Option<String>,
     /// Output folder. Runs whose folder already holds their finished results (same scenario and
-    /// seed) are kept, not run again: a killed sweep resumes where it stopped.
+    /// seed, written by this very build with the same feature programs) are kept, not run
+    /// again: a killed sweep resumes where it stopped, a rebuilt program runs them again.
     #[arg(long, default_value = "out")]
     out: PathBuf,
     /// Also write each run's wall times to `timings.json` (without it, two sweeps of the same
@@ -199,20 +223,42 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
         None => "sweep.json".to_string(),
     };
     let json_path = args.out.join(&file_name);
+    let producers = runs.iter().map(Producer::of).collect::<Result<Vec<_>>>()?;
+    let mut stale = Vec::new();
     let summaries: Vec<Option<RunSummary>> = runs
         .iter()
-        .map(|run| finished_run(&folder(run), run))
+        .zip(&producers)
+        .map(
+            |(run, producer)| match earlier_run(&folder(run), run, producer) {
+                Earlier::Absent => None,
+                Earlier::Kept(summary) => Some(*summary),
+                Earlier::Stale(why) => {
+                    stale.push(why);
+                    None
+                }
+            },
+        )
         .collect();
     let todo: Vec<usize> = (0..runs.len())
         .filter(|&k| summaries[k].is_none())
         .collect();
-    if todo.len() < runs.len() {
+    let kept = runs.len() - todo.len();
+    if kept > 0 {
         eprintln!(
-            "resuming: {} of {} runs finished earlier in {} are kept (remove a run's folder to \
-             run it again)",
-            runs.len() - todo.len(),
+            "resuming: {kept} of {} runs finished earlier in {} by this build are kept (remove a \
+             run's folder to run it again)",
             runs.len(),
             args.out.display()
+        );
+    }
+    if !stale.is_empty() {
+        let count = stale.len();
+        stale.sort();
+        stale.dedup();
+        eprintln!(
+            "running again {count} runs finished earlier in {}: {}",
+            args.out.display(),
+            stale.join("; ")
         );
     }
     // The sweep file says what is finished after every run, so a kill loses nothing finished.
@@ -248,7 +294,8 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
             let k = todo[i];
             // A run whose files cannot be written keeps its numbers but stays pending.
             let (summary, failure) = match result {
-                Ok(output) => {
+                Ok(mut output) => {
+                    output.producer = Some(producers[k].to_json());
                     let written = write_run(&folder(&runs[k]), &output, args.timings);
                     (Some(output.summary), written.err().map(|e| e.to_string()))
                 }

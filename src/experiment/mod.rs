@@ -282,6 +282,7 @@ pub fn run(
         sample_rounds: sample.rounds,
         timings,
         scenario_toml: scenario.to_toml()?,
+        producer: None,
     })
 }
 

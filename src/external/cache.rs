@@ -77,6 +77,32 @@ pub(super) fn key(
     frames: &Digest,
 ) -> Result<String, ExternalError> {
     let mut digest = frames.clone();
+    add_program(&mut digest, program)?;
+    Ok(digest.hex())
+}
+
+/// The digest of `program`: its command line and the content of every argument that names a
+/// file (the script or binary), so that editing the program changes it.
+///
+/// # Errors
+/// [`ExternalError::Io`] when a file it names cannot be read.
+pub fn program_digest(program: &ExternalFeatureConfig) -> Result<String, ExternalError> {
+    let mut digest = Digest::new();
+    add_program(&mut digest, program)?;
+    Ok(digest.hex())
+}
+
+/// The digest of a file's bytes (the running program's own build, for instance).
+///
+/// # Errors
+/// The error of reading it.
+pub fn file_digest(path: &Path) -> std::io::Result<String> {
+    let mut digest = Digest::new();
+    digest.add(&std::fs::read(path)?);
+    Ok(digest.hex())
+}
+
+fn add_program(digest: &mut Digest, program: &ExternalFeatureConfig) -> Result<(), ExternalError> {
     for arg in &program.command {
         digest.add(arg.as_bytes());
         let path = Path::new(arg);
@@ -89,7 +115,7 @@ pub(super) fn key(
             digest.add(&bytes);
         }
     }
-    Ok(digest.hex())
+    Ok(())
 }
 
 /// The stored output under `key`, when there is one.

@@ -11,7 +11,7 @@ mod cache;
 mod process;
 mod table;
 
-pub use cache::cache_dir;
+pub use cache::{cache_dir, file_digest, program_digest};
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};

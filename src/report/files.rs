@@ -37,6 +37,10 @@ pub struct RunOutput {
     pub timings: Timings,
     /// The scenario as TOML ([`crate::scenario::CheckedScenario::to_toml`]).
     pub scenario_toml: String,
+    /// What produced it (the command line sets it: its version, a digest of its build and of
+    /// every feature program), written as `producer.json`; a sweep resumes a run only when it
+    /// matches.
+    pub producer: Option<String>,
 }
 
 /// The file of a run folder whose presence says the run finished: written last.
@@ -45,9 +49,12 @@ pub const RESULTS_FILE: &str = "results.json";
 /// The scenario a run folder's results belong to ([`crate::scenario::CheckedScenario::to_toml`]).
 pub const SCENARIO_FILE: &str = "scenario.toml";
 
+/// What produced a run folder's results ([`RunOutput::producer`]).
+pub const PRODUCER_FILE: &str = "producer.json";
+
 /// Writes a run's outputs into `dir`, each file atomically: `scenario.toml` (the scenario as run),
 /// `frames.csv` (one row per frame and method), `samples.csv` (the sample poses and the adaptive
-/// round that added each), one self-contained model file per method that `evitrack track` reads
+/// round that added each), `producer.json` (what produced it, when the caller says), one self-contained model file per method that `evitrack track` reads
 /// (`model.json` for the evidential tracker, `model-<method>.json` for the others), one
 /// `track-<motion>.png` per test motion and method (true against estimated positions, like the
 /// paper's Figure 2; the other methods' plots end in `-<method>`), `timings.json` when `timings`
@@ -71,6 +78,9 @@ pub fn write_run(
     let mut written = Vec::new();
     let mut put = |name: &str, bytes: &[u8]| put_file(dir, name, bytes, &mut written);
     put(SCENARIO_FILE, output.scenario_toml.as_bytes())?;
+    if let Some(producer) = &output.producer {
+        put(PRODUCER_FILE, producer.as_bytes())?;
+    }
 
     let mut frames = Vec::new();
     write_frames_csv(&mut frames, &output.records, &output.summary.features)

@@ -12,7 +12,7 @@ mod table;
 
 pub use auc::detection_auc;
 pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
-pub use files::{write_run, RunOutput, RESULTS_FILE, SCENARIO_FILE};
+pub use files::{write_run, RunOutput, PRODUCER_FILE, RESULTS_FILE, SCENARIO_FILE};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{
     write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,

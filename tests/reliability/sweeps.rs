@@ -216,6 +216,58 @@ fn a_killed_sweep_leaves_whole_files_and_resumes_to_the_same_bytes() {
     );
 }
 
+/// A rerun after a code change must not hand back the old numbers: a run is kept only when
+/// `producer.json` says this very build (and the same feature programs) wrote it.
+#[test]
+fn a_sweep_resumes_only_runs_this_build_wrote() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = dir.path().join("kill.toml");
+    let two_variants = KILL_SCENARIO.replace("[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]", "[1.0, 2.0]");
+    std::fs::write(&scenario, two_variants).unwrap();
+    let out = dir.path().join("out");
+    let sweep = || {
+        let output = std::process::Command::new(env!("CARGO_BIN_EXE_evitrack"))
+            .args(["sweep", scenario.to_str().unwrap(), "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(output.status.success());
+        String::from_utf8(output.stderr).unwrap()
+    };
+    sweep();
+    let producers: Vec<_> = files_under(&out)
+        .into_iter()
+        .filter(|f| f.ends_with("producer.json"))
+        .collect();
+    assert_eq!(producers.len(), 2, "{producers:?}");
+    let text = std::fs::read_to_string(out.join(&producers[0])).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(json["evitrack"], env!("CARGO_PKG_VERSION"));
+    assert_eq!(json["build"].as_str().unwrap().len(), 32, "{text}");
+    let again = sweep();
+    assert!(again.contains("resuming: 2 of 2 runs"), "{again}");
+    // One run as another build wrote it, one from before runs recorded their producer.
+    let build = json["build"].as_str().unwrap();
+    std::fs::write(
+        out.join(&producers[0]),
+        text.replace(build, "0123456789abcdef0123456789abcdef"),
+    )
+    .unwrap();
+    std::fs::remove_file(out.join(&producers[1])).unwrap();
+    let rerun = sweep();
+    assert!(rerun.contains("running again 2 runs"), "{rerun}");
+    assert!(
+        rerun.contains("written by another build of evitrack"),
+        "{rerun}"
+    );
+    assert!(rerun.contains("written before runs recorded"), "{rerun}");
+    assert!(!rerun.contains("resuming"), "{rerun}");
+    assert_eq!(
+        std::fs::read_to_string(out.join(&producers[0])).unwrap(),
+        text
+    );
+}
+
 #[test]
 fn every_write_failure_of_a_sweep_is_named_and_an_unwritable_out_is_refused_first() {
     let dir = tempfile::tempdir().unwrap();
