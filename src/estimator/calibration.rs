@@ -426,6 +426,11 @@ impl Calibration {
         if !(edges.iter().all(|v| v.is_finite()) && w.x_min < w.x_max && w.y_min < w.y_max) {
             return Err("`calibration.workspace` is not a finite rectangle".into());
         }
+        // A rectangle beyond the rig's ±10 m would give regions of infinite area.
+        for corner in [[w.x_min, w.y_min], [w.x_max, w.y_max]] {
+            crate::planar::check_position(corner, None)
+                .map_err(|e| format!("`calibration.workspace`: {e}"))?;
+        }
         Ok(())
     }
 }

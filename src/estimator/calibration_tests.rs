@@ -162,6 +162,13 @@ fn the_calibration_rides_in_the_model_file_and_is_checked() {
     assert!(split_calibration(&broken)
         .unwrap_err()
         .contains("calibration.floor"));
+    // Found by the fuzz corpus: a workspace edge at 1e300 made abstaining regions infinite.
+    let mut value: serde_json::Value = serde_json::from_str(&text).unwrap();
+    value["calibration"]["workspace"]["x_max"] = serde_json::json!(1e300);
+    let broken = serde_json::to_string(&value).unwrap();
+    assert!(split_calibration(&broken)
+        .unwrap_err()
+        .contains("calibration.workspace"));
 }
 
 #[test]

@@ -4,10 +4,9 @@
 //! A panic anywhere is a failure. Each check says whether the input was accepted.
 
 use evitrack::dataset::Dataset;
-use evitrack::estimator::{Centre, Continuous, Evidential, Gp, Knn, PoseEstimator};
+use evitrack::estimator::{load_text, Method, PoseEstimate};
 use evitrack::evidence::exchange::{combine_json_within, CombineLimits};
 use evitrack::evidence::WorkLimits;
-use evitrack::model::EvidentialModel;
 use evitrack::scenario::ScenarioSet;
 
 /// Small limits, so that a fuzzed input cannot spend the run's memory.
@@ -66,46 +65,84 @@ pub fn scenario(data: &[u8]) -> bool {
     false
 }
 
-/// A model file of any method; a model that loads estimates a few frames.
+/// Every number of an estimate: poses, radii, covariances and regions finite; a level or a
+/// score finite or the documented +∞ (total conflict, no sample near), never NaN or −∞.
+fn check_estimate(estimate: &PoseEstimate) {
+    let finite = |what: &str, v: f64| assert!(v.is_finite(), "{what} {v}");
+    if let Some(p) = estimate.pose {
+        p.iter().for_each(|&v| finite("pose", v));
+    }
+    if let Some(r) = estimate.uncertainty_radius {
+        assert!(r.is_finite() && r >= 0.0, "uncertainty radius {r}");
+    }
+    for (what, v) in [
+        ("conflict level", estimate.conflict_level),
+        ("detection score", estimate.detection_score),
+    ] {
+        if let Some(v) = v {
+            assert!(!v.is_nan() && v != f64::NEG_INFINITY, "{what} {v}");
+        }
+    }
+    if let Some(c) = estimate.covariance {
+        c.iter().flatten().for_each(|&v| finite("covariance", v));
+    }
+    if let Some(region) = &estimate.region {
+        region
+            .centre
+            .iter()
+            .for_each(|&v| finite("region centre", v));
+        region
+            .shape
+            .iter()
+            .flatten()
+            .for_each(|&v| finite("region shape", v));
+        for (what, v) in [
+            ("region level", region.level),
+            ("region area", region.area),
+            ("region semi-major axis", region.semi_major),
+        ] {
+            finite(what, v);
+        }
+    }
+}
+
+/// A model file of any registered method (as `track` reads it, calibration included); a model
+/// that loads estimates a few frames alone and over a motion, and writes a file that loads.
 pub fn model(data: &[u8]) -> bool {
     let Ok(text) = std::str::from_utf8(data) else {
         return false;
     };
     let mut accepted = false;
-    let loaded: [Result<Box<dyn PoseEstimator>, String>; 5] = [
-        EvidentialModel::from_json(text)
-            .map_err(|e| e.to_string())
-            .and_then(|m| Evidential::from_model(m).map_err(|e| e.to_string()))
-            .map(|e| Box::new(e) as Box<dyn PoseEstimator>),
-        Knn::from_json(text)
-            .map(|e| Box::new(e) as _)
-            .map_err(|e| e.to_string()),
-        Gp::from_json(text)
-            .map(|e| Box::new(e) as _)
-            .map_err(|e| e.to_string()),
-        Centre::from_json(text)
-            .map(|e| Box::new(e) as _)
-            .map_err(|e| e.to_string()),
-        Continuous::from_json(text)
-            .map(|e| Box::new(e) as _)
-            .map_err(|e| e.to_string()),
-    ];
-    for estimator in loaded {
-        match estimator {
+    let path = std::path::Path::new("fuzz.json");
+    for method in Method::all() {
+        let estimator = match load_text(method, path, text) {
+            Err(e) => {
+                said_something(e);
+                continue;
+            }
+            Ok(estimator) => estimator,
+        };
+        accepted = true;
+        let n = estimator.feature_names().len();
+        let rows = [vec![Some(0.0); n], vec![None; n], vec![Some(1e300); n]];
+        for row in &rows {
+            match estimator.estimate(row) {
+                Err(e) => said_something(e),
+                Ok(estimate) => check_estimate(&estimate),
+            }
+        }
+        let mut motion = estimator.start_motion();
+        for (k, row) in rows.iter().chain(&rows).enumerate() {
+            match motion.next(0.05 * k as f64, row) {
+                Err(e) => said_something(e),
+                Ok(estimate) => check_estimate(&estimate),
+            }
+        }
+        drop(motion);
+        match estimator.to_json() {
             Err(e) => said_something(e),
-            Ok(estimator) => {
-                accepted = true;
-                let n = estimator.feature_names().len();
-                for row in [vec![Some(0.0); n], vec![None; n], vec![Some(1e300); n]] {
-                    match estimator.estimate(&row) {
-                        Err(e) => said_something(e),
-                        Ok(estimate) => {
-                            if let Some(p) = estimate.pose {
-                                assert!(p.iter().all(|v| v.is_finite()), "pose {p:?}");
-                            }
-                        }
-                    }
-                }
+            Ok(written) => {
+                load_text(method, path, &written).expect("a written model file loads again");
             }
         }
     }
