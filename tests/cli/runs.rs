@@ -73,7 +73,7 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
     );
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
-        stderr.contains("grid-states=3") && stderr.contains("exceeds"),
+        stderr.contains("grid-states=3") && stderr.contains("is above the expected maximum"),
         "{stderr}"
     );
     let table = String::from_utf8_lossy(&out.stdout);
@@ -132,6 +132,71 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
     }
     let out = evitrack(&["sweep", scenario, "--shard", "3/2"], "");
     assert_eq!(out.status.code(), Some(2));
+}
+
+/// A guard is a band: a figure 4 % better than measured fails `--check` as a figure 4 % worse
+/// does, and only on the seed it was measured on.
+#[test]
+fn a_figure_better_than_its_band_fails_the_check_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, expect: &str| {
+        let path = dir.path().join(format!("{name}.toml"));
+        let text = small_scenario("band", "").replacen(
+            "name = \"band\"\n",
+            "name = \"band\"\nestimators = [\"knn\"]\n",
+            1,
+        ) + expect
+            + "[sweep]\nseeds = [1, 2]\n";
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let measured_at = |out: &std::path::Path| -> f64 {
+        let sweep: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("sweep.json")).unwrap())
+                .unwrap();
+        let run = sweep["runs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["seed"] == 1)
+            .unwrap()
+            .clone();
+        run["methods"][0]["error"]["mean"].as_f64().unwrap()
+    };
+    let plain = write("plain", "");
+    let out = dir.path().join("plain-out");
+    run_expecting("sweep", &plain, &out, 0);
+    let mean = measured_at(&out);
+    for (factor, code) in [(1.0, 0), (1.029, 0), (0.971, 0), (1.04, 1), (0.96, 1)] {
+        let expect = format!("[expect.methods.knn]\nmean_error = {}\n", mean * factor);
+        let scenario = write(&format!("band-{factor}"), &expect);
+        let out = dir.path().join(format!("out-{factor}"));
+        let output = evitrack(
+            &[
+                "sweep",
+                scenario.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--check",
+            ],
+            "",
+        );
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(code), "{factor}: {stderr}");
+        if factor > 1.0 && code == 1 {
+            // Measured below the band: better than expected.
+            assert!(
+                stderr.contains("-3.8 %") && stderr.contains("deliberately"),
+                "{stderr}"
+            );
+        }
+        // Seed 2 runs too, but answers to no band: one miss at most.
+        assert_eq!(
+            stderr.matches("(knn): mean error").count(),
+            code as usize,
+            "{stderr}"
+        );
+    }
 }
 
 #[test]
