@@ -4,7 +4,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::features::synthetic::rig_like_frame;
 use evitrack::features::{
-    extract_silhouette, FeatureConfig, MeanMethod, Polarity, SilhouetteConfig,
+    extract_silhouette, FeatureConfig, MeanMethod, Polarity, SilhouetteConfig, TileConfig,
 };
 use std::hint::black_box;
 
@@ -34,6 +34,20 @@ fn features(c: &mut Criterion) {
             )
         })
     });
+    // The local family alone, as in scenarios/occlusion.toml, and at the trackers' 64.
+    for (columns, rows) in [(4usize, 4usize), (8, 8)] {
+        let mut config = FeatureConfig::default();
+        config.size_functions.enabled = false;
+        config.tiles = TileConfig {
+            enabled: true,
+            columns,
+            rows,
+            ..TileConfig::default()
+        };
+        let set = config.check().expect("valid tiles");
+        let id = BenchmarkId::new("tiles", format!("{columns}x{rows}"));
+        group.bench_with_input(id, &set, |b, set| b.iter(|| set.extract(black_box(&frame))));
+    }
     for grid in [16usize, 64] {
         let mut table = FeatureConfig::with_barycentre();
         table.size_functions.mean = MeanMethod::Table;

@@ -21,6 +21,7 @@ mod reliability;
 mod scheduler;
 mod sim;
 mod temporal;
+mod tiles;
 mod toy_method;
 mod track;
 

@@ -20,6 +20,7 @@ pub mod mesh;
 pub mod silhouette;
 pub mod size;
 pub mod synthetic;
+pub mod tiles;
 
 use std::fmt;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -33,6 +34,7 @@ pub use external::{ExternalFeatureConfig, MissingValues};
 pub use mesh::{analyse_mesh, FeatureSmoothness, MeshAnalysis, MeshOrder};
 pub use silhouette::{extract_silhouette, Polarity, Silhouette, SilhouetteConfig, Threshold};
 pub use size::{distance_from_line, PersistenceDiagram, SizeTable, Window};
+pub use tiles::{TileConfig, TileFeature, MAX_TILES};
 
 /// Feature values of a dataset's frames: one row per frame, one value per feature (`None` when
 /// missing).
@@ -80,8 +82,14 @@ pub enum FeatureError {
         /// Value given.
         min_contrast: f64,
     },
+    /// The tile features' settings are wrong.
+    #[error("[features.tiles]: {reason}")]
+    BadTiles {
+        /// What is wrong and how to fix it.
+        reason: String,
+    },
     /// No feature is enabled.
-    #[error("the feature set is empty: enable size_functions and/or barycentre")]
+    #[error("the feature set is empty: enable size_functions, barycentre and/or tiles")]
     NoFeatures,
     /// Two values share a name.
     #[error("feature name {name:?} appears twice: names must be unique")]
@@ -229,6 +237,10 @@ pub struct FeatureConfig {
     pub size_functions: SizeFunctionConfig,
     /// Intensity barycentre.
     pub barycentre: BarycentreConfig,
+    /// Local features: body share per tile (`[features.tiles]`, after the barycentre); left out
+    /// of the written form when off, so older files keep their bytes.
+    #[serde(skip_serializing_if = "tiles::is_off")]
+    pub tiles: TileConfig,
     /// Programs in any language whose values follow the built-in ones (`[[features.external]]`);
     /// left out of the written form when there is none, so older files keep their bytes.
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -276,6 +288,9 @@ impl FeatureConfig {
                 polarity: self.polarity,
                 background: self.barycentre.background,
             }));
+        }
+        if self.tiles.enabled {
+            features.push(Arc::new(self.tiles.check(self.polarity)?));
         }
         let mut set = FeatureSet::new(features)?;
         for program in &self.external {
