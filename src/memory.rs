@@ -5,7 +5,8 @@
 //! continuous surrogates' tabulated grid (nodes × features × 4 values, once per run: the methods
 //! that fit the same surrogates share it), the Gaussian processes' kernel matrices (n² for the
 //! factorisation on every sample, m² per optimiser start), the discrete tracker's sub-grid,
-//! particle sets, k-NN samples and the images of every motion (a run keeps them all). Transient
+//! particle sets, k-NN samples and the images of every motion (a run keeps them all, the kept
+//! samples twice: the dense trajectory's and their copy). Transient
 //! and lasting allocations are added as if held at once, so it errs high.
 
 use crate::estimator::REFINE_SUBDIVISIONS;
@@ -211,18 +212,20 @@ pub fn of_run(scenario: &CheckedScenario) -> Result<Estimate, MemoryError> {
     for m in &s.tests {
         test += frames(m)?;
     }
-    // Faulted images are a second copy of the test motions' frames.
+    // The kept samples are a copy of the dense trajectory's frames (both held), and faulted
+    // images a second copy of the test motions'.
     let copies = if scenario.fault_plan().is_empty() {
         1
     } else {
         2
     };
-    let held = dense + adaptive + other + copies * test;
+    let held = dense + samples + adaptive + other + copies * test;
+    let features = scenario.feature_set().names().len();
     let camera = &s.sim.camera;
     let w = &s.sim.geometry.workspace;
     let shape = FitShape {
         samples,
-        features: scenario.feature_set().names().len(),
+        features,
         extent: [w.x_max - w.x_min, w.y_max - w.y_min],
     };
     let mut parts = vec![Part {
@@ -236,6 +239,12 @@ pub fn of_run(scenario: &CheckedScenario) -> Result<Estimate, MemoryError> {
         ),
         bytes: (held as u64).saturating_mul(camera.width as u64 * camera.height as u64),
     }];
+    // Every frame's row of optional values (16 bytes each), the kept ones copied too.
+    parts.push(Part {
+        what: format!("feature rows, {held} frames × {features} features"),
+        setting: "the features and the motions' frames".into(),
+        bytes: (held as u64).saturating_mul(features as u64 * 16),
+    });
     parts.extend(fit_parts(&s.estimators, &s.estimator_settings(), &shape));
     Ok(Estimate {
         name: s.name.clone(),
@@ -403,7 +412,7 @@ pub fn parse_size(text: &str) -> Result<u64, MemoryError> {
         _ => return Err(bad("unknown unit")),
     };
     let bytes = value * factor;
-    if !(bytes >= 1.0) {
+    if bytes < 1.0 {
         return Err(bad("must be at least one byte"));
     }
     if bytes >= u64::MAX as f64 {
