@@ -231,6 +231,26 @@ pub(crate) fn spinner(label: &str) -> ProgressBar {
     bar
 }
 
+/// `--memory-limit`: a size with its unit.
+pub(crate) fn parse_memory_limit(text: &str) -> Result<u64, String> {
+    evitrack::memory::parse_size(text).map_err(|e| e.to_string())
+}
+
+/// Holds `runs`, `jobs` at once, to `--memory-limit` (or the machine's default) before anything
+/// large is allocated.
+pub(crate) fn check_memory(
+    runs: &[evitrack::scenario::CheckedScenario],
+    jobs: usize,
+    limit: Option<u64>,
+) -> Result<()> {
+    let estimates = runs
+        .iter()
+        .map(evitrack::memory::of_run)
+        .collect::<Result<Vec<_>, _>>()?;
+    let limit = evitrack::memory::Limit::from_option(limit, jobs);
+    Ok(evitrack::memory::check(&estimates, jobs, limit)?)
+}
+
 /// The cores this process may use, the default thread count of every command.
 pub(crate) fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())

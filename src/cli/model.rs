@@ -166,6 +166,10 @@ pub struct TrainArgs {
     pub(super) weights: Option<WeightsArg>,
     #[command(flatten)]
     pub(super) track: TrackOptions,
+    /// Refuse (exit 2) before fitting when the estimated peak memory is above this (`4GiB`,
+    /// `1500MB`, bytes). Default: 3/4 of the smaller of the machine's memory and `ulimit -v`.
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory_limit)]
+    pub(super) memory_limit: Option<u64>,
 }
 
 /// `--method`: a registered method's name.
@@ -283,6 +287,45 @@ pub(super) fn paper_states(feature: &str) -> Result<usize> {
     })
 }
 
+/// Holds the fit to `--memory-limit` (or the machine's default) before it allocates.
+fn check_fit_memory(
+    args: &TrainArgs,
+    dataset: &evitrack::dataset::Dataset,
+    settings: &evitrack::estimator::EstimatorSettings,
+    features: usize,
+    poses: &[[f64; 2]],
+) -> Result<()> {
+    use evitrack::memory::{check, fit_parts, Estimate, FitShape, Limit, Part};
+    let extent = match &dataset.manifest.workspace {
+        Some(w) => [w.x_max - w.x_min, w.y_max - w.y_min],
+        None => {
+            let (lo, hi) = evitrack::planar::bounding_box(poses);
+            [hi[0] - lo[0], hi[1] - lo[1]]
+        }
+    };
+    let shape = FitShape {
+        samples: poses.len(),
+        features,
+        extent,
+    };
+    let images = Part {
+        what: format!("the dataset's {} images", dataset.frames.len()),
+        setting: args.dataset.display().to_string(),
+        bytes: dataset.images().map(|i| i.len() as u64).sum(),
+    };
+    let estimate = Estimate {
+        name: format!("train --method {}", args.method),
+        parts: std::iter::once(images)
+            .chain(fit_parts(&[args.method], settings, &shape))
+            .collect(),
+    };
+    Ok(check(
+        &[estimate],
+        1,
+        Limit::from_option(args.memory_limit, 1),
+    )?)
+}
+
 pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     ensure_output_writable(Some(&args.out))?;
     let dataset = read_dataset(&args.dataset)?;
@@ -332,6 +375,7 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     };
     let settings = super::train_settings::train_settings(args, &names, validation.is_some())?;
     let method = args.method;
+    check_fit_memory(args, &dataset, &settings, names.len(), &sample.poses)?;
     let bar = spinner(&format!("fit {method}"));
     let estimator = method.fit(&settings, &training);
     bar.finish_and_clear();

@@ -28,6 +28,10 @@ pub struct RunArgs {
     /// scenario and seed write byte-identical folders).
     #[arg(long)]
     timings: bool,
+    /// Refuse (exit 2) before running when the estimated peak memory is above this (`4GiB`,
+    /// `1500MB`, bytes). Default: 3/4 of the smaller of the machine's memory and `ulimit -v`.
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory_limit)]
+    memory_limit: Option<u64>,
 }
 
 /// Progress bars for the stages of runs, one line per variant: the stage (simulating a motion,
@@ -100,6 +104,7 @@ pub fn run(args: &RunArgs) -> Result<ExitCode> {
         Some(seed) => set.base.with_seed(seed)?,
         None => set.base,
     };
+    super::check_memory(std::slice::from_ref(&scenario), 1, args.memory_limit)?;
     let dir = args.out.join(scenario.name());
     ensure_writable(&dir)?;
     // Its motions simulated side by side, each frame rendered beside the physics: the same

@@ -153,6 +153,10 @@ pub struct SweepArgs {
     /// files and seeds write byte-identical folders).
     #[arg(long)]
     timings: bool,
+    /// Refuse (exit 2) before running when the estimated peak memory is above this (`4GiB`,
+    /// `1500MB`, bytes). Default: 3/4 of the smaller of the machine's memory and `ulimit -v`.
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory_limit)]
+    memory_limit: Option<u64>,
 }
 
 /// Parses `i/n` (1-based) into a zero-based slice index and the slice count.
@@ -280,6 +284,7 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
     sweep_file(&state).write(&json_path)?;
     let state = std::sync::Mutex::new(state);
     let todo_runs: Vec<CheckedScenario> = todo.iter().map(|&k| runs[k].clone()).collect();
+    super::check_memory(&todo_runs, jobs, args.memory_limit)?;
     let todo_labels: Vec<String> = todo.iter().map(|&k| labels[k].clone()).collect();
     let bench = Workbench::with_threads(jobs);
     let bars = StageBars::new(&todo_labels);

@@ -23,6 +23,7 @@ pub mod test_maps;
 
 pub use calibration::{underlying, Calibrated, Calibration, ConfidenceSettings};
 pub use centre::{Centre, CentreSettings};
+pub(crate) use continuous::grid_nodes;
 pub use continuous::{
     Continuous, ContinuousSettings, ContinuousTemporal, SurrogateHyperparameters,
     MAX_CONTINUOUS_FEATURES,
@@ -31,6 +32,7 @@ pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
 pub use motion::{TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES};
+pub(crate) use motion::{REFINE_MAX_POINTS, REFINE_SUBDIVISIONS};
 pub use particle::{ParticleFilter, ParticleSettings};
 pub use registry::{
     register, CheckFn, EstimatorSettings, FitFn, LoadFn, Method, MethodEntry, RegistryError,

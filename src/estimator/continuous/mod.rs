@@ -23,6 +23,7 @@ mod checks;
 pub(crate) use checks::{check_settings, check_temporal_settings};
 mod file;
 mod frame;
+mod grid_share;
 mod surrogate;
 mod temporal;
 
@@ -30,6 +31,7 @@ use crate::range::within;
 
 use serde::{Deserialize, Serialize};
 
+pub(crate) use surrogate::grid_nodes;
 pub use surrogate::SurrogateHyperparameters;
 
 /// The default threshold's factor over the largest validation level. Its noise scales are fitted

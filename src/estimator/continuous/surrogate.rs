@@ -4,8 +4,12 @@
 //! noise and smoothness: the barycentre is a hundred times less noisy, relative to its range,
 //! than a size function, and a shared kernel over-smooths it.
 
+use std::sync::Arc;
+
 use nalgebra::{Cholesky, DMatrix};
 use serde::{Deserialize, Serialize};
+
+use super::grid_share;
 
 use crate::gaussian_process::{minimise, upper_inverse, Objective};
 use crate::planar::bounding_box;
@@ -65,12 +69,22 @@ struct Grid {
     origin: [f64; 2],
     step: [f64; 2],
     nodes: [usize; 2],
-    /// Per node, per feature: f, ∂f/∂x, ∂f/∂y, ∂²f/∂x∂y (raw units, mm), node-major.
-    table: Vec<[f64; 4]>,
+    /// Per node, per feature: f, ∂f/∂x, ∂f/∂y, ∂²f/∂x∂y (raw units, mm), node-major; shared
+    /// by every live fit that tabulates the same maps ([`grid_share`]).
+    table: Arc<Vec<[f64; 4]>>,
 }
 
 /// Most grid nodes along one axis.
 pub(super) const MAX_GRID_NODES: usize = 1000;
+
+/// Nodes per axis of a grid of about `spacing` mm over a box of `extent` mm (what the memory
+/// estimate counts too).
+pub(crate) fn grid_nodes(extent: [f64; 2], spacing: f64) -> [usize; 2] {
+    extent.map(|e| match e > 0.0 {
+        true => ((e / spacing).ceil() as usize + 1).clamp(2, MAX_GRID_NODES),
+        false => 2,
+    })
+}
 
 /// Fits each feature's hyperparameters on at most `max_fit` evenly spaced samples: L-BFGS from
 /// two starts (length scale 1 and ¼ in standardised units), the better one wins; the features
@@ -198,41 +212,43 @@ impl Grid {
         spacing: f64,
     ) -> Self {
         let (lo, hi) = bounding_box(poses);
-        let mut nodes = [2usize; 2];
+        let nodes = grid_nodes([hi[0] - lo[0], hi[1] - lo[1]], spacing);
         let mut step = [1.0; 2];
         for k in 0..2 {
-            let extent = hi[k] - lo[k];
-            if extent > 0.0 {
-                nodes[k] = ((extent / spacing).ceil() as usize + 1).clamp(2, MAX_GRID_NODES);
-                step[k] = extent / (nodes[k] - 1) as f64;
+            if hi[k] > lo[k] {
+                step[k] = (hi[k] - lo[k]) / (nodes[k] - 1) as f64;
             }
         }
         let dim = kernels.len();
         let node = |c: usize, r: usize| [lo[0] + c as f64 * step[0], lo[1] + r as f64 * step[1]];
-        let row = |r: usize| -> Vec<[f64; 4]> {
-            let mut out = Vec::with_capacity(nodes[0] * dim);
-            for c in 0..nodes[0] {
+        let fill_row = |r: usize, out: &mut [[f64; 4]]| {
+            for (c, slots) in out.chunks_exact_mut(dim).enumerate() {
                 let q = node(c, r);
                 let z = [pose.apply(0, q[0]), pose.apply(1, q[1])];
-                for (i, kernel) in kernels.iter().enumerate() {
+                for (i, (kernel, slot)) in kernels.iter().zip(slots).enumerate() {
                     let [v, gx, gy, gxy] = kernel.value_gradient_cross(z);
                     let (s, [sx, sy]) = (features.scales[i], [pose.scales[0], pose.scales[1]]);
-                    out.push([
+                    *slot = [
                         features.means[i] + s * v,
                         s * gx / sx,
                         s * gy / sy,
                         s * gxy / (sx * sy),
-                    ]);
+                    ];
                 }
             }
-            out
         };
-        let rows = on_two_threads(nodes[1], row);
+        let key = grid_key(pose, features, kernels, lo, step, nodes);
+        // Filled in place: the table is the run's largest allocation, so it is never held twice.
+        let table = grid_share::shared(key, || {
+            let mut table = vec![[0.0; 4]; nodes[0] * nodes[1] * dim];
+            rows_on_two_threads(&mut table, nodes[0] * dim, fill_row);
+            table
+        });
         Self {
             origin: lo,
             step,
             nodes,
-            table: rows.concat(),
+            table,
         }
     }
 
@@ -396,6 +412,63 @@ fn on_two_threads<T: Send>(count: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T
         }
     });
     slots.into_iter().flatten().collect()
+}
+
+/// Fills each `row_len` row of `table` with `fill(row, slice)`, rows alternating between two
+/// threads: every value is computed as on one. A panic in `fill` is resumed here.
+fn rows_on_two_threads(
+    table: &mut [[f64; 4]],
+    row_len: usize,
+    fill: impl Fn(usize, &mut [[f64; 4]]) + Sync,
+) {
+    if row_len == 0 {
+        return;
+    }
+    let (even, odd): (Vec<_>, Vec<_>) = table
+        .chunks_mut(row_len)
+        .enumerate()
+        .partition(|(r, _)| r % 2 == 0);
+    std::thread::scope(|scope| {
+        let fill = &fill;
+        let handle = scope.spawn(move || odd.into_iter().for_each(|(r, row)| fill(r, row)));
+        even.into_iter().for_each(|(r, row)| fill(r, row));
+        handle
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+    });
+}
+
+/// Everything a grid's table depends on, bit for bit: equal keys tabulate equal tables.
+fn grid_key(
+    pose: &Standardisation,
+    features: &Standardisation,
+    kernels: &[FeatureKernel],
+    origin: [f64; 2],
+    step: [f64; 2],
+    nodes: [usize; 2],
+) -> Vec<u8> {
+    let mut numbers: Vec<f64> = [origin, step].concat();
+    numbers.extend(nodes.map(|n| n as f64));
+    let samples = kernels.first().map_or(0, |k| k.inputs.len());
+    numbers.extend([kernels.len() as f64, samples as f64]);
+    for s in [pose, features] {
+        numbers.extend(&s.means);
+        numbers.extend(&s.scales);
+    }
+    for k in kernels {
+        numbers.extend([
+            k.signal_var,
+            k.inverse_length[0],
+            k.inverse_length[1],
+            f64::NAN,
+        ]);
+        numbers.extend(k.inputs.iter().flatten());
+        numbers.extend(&k.alpha);
+    }
+    numbers
+        .iter()
+        .flat_map(|x| x.to_bits().to_le_bytes())
+        .collect()
 }
 
 fn squared(a: [f64; 2], b: [f64; 2]) -> f64 {

@@ -7,6 +7,7 @@ mod refine;
 mod velocity;
 
 pub use refine::Refinement;
+pub(crate) use refine::{MAX_POINTS as REFINE_MAX_POINTS, SUBDIVISIONS as REFINE_SUBDIVISIONS};
 pub use velocity::VelocityLine;
 
 use serde::{Deserialize, Serialize};
