@@ -18,6 +18,9 @@ pub(super) struct Limits {
     pub noise: LimitNoise,
 }
 
+/// One test motion's true poses and feature rows.
+pub(super) type TestFrames<'a> = (&'a [[f64; 2]], &'a [Vec<Option<f64>>]);
+
 /// The limits of the test frames `tests` (true poses and feature rows per motion); `None` when
 /// no continuous fit could be had (too many features for it, a singular kernel: the run goes on
 /// without a limit).
@@ -26,7 +29,7 @@ pub(super) fn measure(
     bench: &Workbench,
     settings: &EstimatorSettings,
     training: &TrainingSet,
-    tests: &[(&[[f64; 2]], &[Vec<Option<f64>>])],
+    tests: &[TestFrames<'_>],
 ) -> Option<Limits> {
     let own = estimators.iter().find_map(|e| {
         (underlying(e.as_ref()) as &dyn std::any::Any)

@@ -188,12 +188,34 @@ impl NoiseModel {
             }
             info
         };
+        let full = quadratic(&self.precision, &|a| kept[a]);
         if kept.len() == n {
-            return Some(quadratic(&self.precision, &|a| kept[a]));
+            return Some(full);
         }
-        let block = self.covariance.select_rows(&kept).select_columns(&kept);
-        let precision = block.cholesky()?.inverse();
-        Some(quadratic(&precision, &|a| a))
+        let gone: Vec<usize> = (0..n).filter(|i| !kept.contains(i)).collect();
+        if gone.len() > kept.len() {
+            let block = self.covariance.select_rows(&kept).select_columns(&kept);
+            let precision = block.cholesky()?.inverse();
+            return Some(quadratic(&precision, &|a| a));
+        }
+        // Few gone (M): (Σ_PP)⁻¹ = Λ_PP − Λ_PM Λ_MM⁻¹ Λ_MP with Λ = Σ⁻¹ cached, so only an
+        // M × M system is solved: O(n²M) instead of a fresh factorisation, O(n³).
+        let mut projected = DMatrix::zeros(gone.len(), 2);
+        for (a, &m) in gone.iter().enumerate() {
+            for &j in &kept {
+                let w = self.precision[(m, j)];
+                projected[(a, 0)] += w * jacobian[j][0];
+                projected[(a, 1)] += w * jacobian[j][1];
+            }
+        }
+        let corner = self.precision.select_rows(&gone).select_columns(&gone);
+        let solved = corner.cholesky()?.solve(&projected);
+        let drop = projected.transpose() * solved;
+        Some([
+            full[0] - drop[(0, 0)],
+            full[1] - drop[(0, 1)],
+            full[2] - drop[(1, 1)],
+        ])
     }
 
     /// The bound tr I⁻¹ (mm²) of the features `present`; `None` when I is singular (fewer

@@ -147,3 +147,45 @@ fn bad_inputs_are_named() {
         })
     );
 }
+
+#[test]
+fn features_left_out_of_correlated_noise_match_the_model_of_the_rest() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let normal = Normal::new(0.0, 1.0).unwrap();
+    let rows: Vec<Vec<Option<f64>>> = (0..500)
+        .map(|_| {
+            let common = normal.sample(&mut rng);
+            (0..8)
+                .map(|i| Some((1.0 + 0.1 * i as f64) * (0.7 * common + normal.sample(&mut rng))))
+                .collect()
+        })
+        .collect();
+    let sigmas: Vec<f64> = (0..8).map(|i| 1.2 + 0.1 * i as f64).collect();
+    let model = NoiseModel::from_residuals(&sigmas, &rows).unwrap();
+    assert_eq!(model.floored().0, 0);
+    let q = [2.0, 50.0];
+    let g: Vec<[f64; 2]> = (0..8).map(|i| feature_gradient(i, q)).collect();
+    // Two gone (the cached precision's Schur complement) and five gone (the block factored).
+    for gone in [&[2usize, 5][..], &[0, 1, 3, 4, 6]] {
+        let present: Vec<bool> = (0..8).map(|i| !gone.contains(&i)).collect();
+        let keep: Vec<usize> = (0..8).filter(|i| present[*i]).collect();
+        let rest = NoiseModel::from_residuals(
+            &keep.iter().map(|&i| sigmas[i]).collect::<Vec<_>>(),
+            &(rows.iter())
+                .map(|r| keep.iter().map(|&i| r[i]).collect())
+                .collect::<Vec<_>>(),
+        )
+        .unwrap();
+        let expected = rest
+            .bound(
+                &keep.iter().map(|&i| g[i]).collect::<Vec<_>>(),
+                &vec![true; keep.len()],
+            )
+            .unwrap();
+        let found = model.bound(&g, &present).unwrap();
+        assert!(
+            (found - expected).abs() < 1e-9 * expected,
+            "{gone:?}: {found} vs {expected}"
+        );
+    }
+}
