@@ -12,6 +12,11 @@ use crate::report::LimitNoise;
 
 use super::Workbench;
 
+/// Most sample poses the limit fits feature maps on by itself (when the run has no continuous
+/// tracker): the fit factors a kernel matrix per feature on every sample, O(n³), and the 10,000
+/// samples of `scale.toml` would cost (10,000 / 1,521)³ ≈ 280× `best.toml`'s per feature.
+pub const LIMIT_MAX_SAMPLES: usize = 2000;
+
 /// The bound tr I⁻¹ (mm²) of every test frame, per test motion, and the noise it assumed.
 pub(super) struct Limits {
     pub per_motion: Vec<Vec<Option<f64>>>,
@@ -22,8 +27,8 @@ pub(super) struct Limits {
 pub(super) type TestFrames<'a> = (&'a [[f64; 2]], &'a [Vec<Option<f64>>]);
 
 /// The limits of the test frames `tests` (true poses and feature rows per motion); `None` when
-/// no continuous fit could be had (too many features for it, a singular kernel: the run goes on
-/// without a limit).
+/// no continuous fit could be had (too many features or, for a fit of its own, more than
+/// [`LIMIT_MAX_SAMPLES`] samples; a singular kernel): the run goes on without a limit.
 pub(super) fn measure(
     estimators: &[Box<dyn PoseEstimator>],
     bench: &Workbench,
@@ -38,6 +43,7 @@ pub(super) fn measure(
     });
     let continuous = match own {
         Some(c) => c,
+        None if training.sample.poses.len() > LIMIT_MAX_SAMPLES => return None,
         None => {
             let fitted = bench.fit(Method::CONTINUOUS, settings, training).ok()?;
             (underlying(fitted.as_ref()) as &dyn std::any::Any)
