@@ -63,6 +63,7 @@ pub mod faults;
 pub mod features;
 pub(crate) mod gaussian_process;
 pub mod hmm;
+pub mod information;
 pub mod memory;
 pub mod model;
 pub mod model_file;

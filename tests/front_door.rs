@@ -38,11 +38,18 @@ fn rows_without_label(path: &Path, method: &str) -> Vec<Vec<String>> {
     let mut reader = csv::Reader::from_path(path).unwrap();
     let header = reader.headers().unwrap().clone();
     assert_eq!((&header[0], &header[1]), ("method", "motion"));
+    // The information limit is the run's (its feature maps at the true poses), not the model's.
+    let limit = header.iter().position(|h| h == "limit_mm");
     reader
         .records()
         .map(|r| r.unwrap())
         .filter(|r| &r[0] == method)
-        .map(|r| r.iter().skip(2).map(String::from).collect())
+        .map(|r| {
+            (r.iter().enumerate())
+                .filter(|&(i, _)| i >= 2 && Some(i) != limit)
+                .map(|(_, v)| String::from(v))
+                .collect()
+        })
         .collect()
 }
 

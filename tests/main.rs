@@ -14,6 +14,7 @@ mod features;
 mod front_door;
 mod fuzz_corpus;
 mod hmm;
+mod information;
 mod memory;
 mod model;
 mod pipeline;

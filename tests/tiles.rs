@@ -134,10 +134,12 @@ fn method(runs: &HashMap<String, RunOutput>, variant: &str, name: &str) -> (f64,
 /// cores); `sweep scenarios/occlusion.toml --check` holds the rest.
 #[test]
 fn the_occlusion_scenario_meets_its_expectations_and_issue_28s_reading() {
-    let runs: HashMap<_, _> =
-        crate::run_variants("occlusion.toml", Some(&["clean-tiles", "dark", "dark-tiles"]))
-            .into_iter()
-            .collect();
+    let runs: HashMap<_, _> = crate::run_variants(
+        "occlusion.toml",
+        Some(&["clean-tiles", "dark", "dark-tiles"]),
+    )
+    .into_iter()
+    .collect();
     for (name, output) in &runs {
         let missed = output.summary.regressions();
         assert!(missed.is_empty(), "{name}: {missed:#?}");

@@ -396,6 +396,8 @@ pub(super) fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) 
         "error_at_95",
         "aurc_clean",
         "aurc_corrupted",
+        "limit_rms",
+        "efficiency",
     ])?;
     for s in all_runs {
         for m in &s.methods {
@@ -454,6 +456,8 @@ pub(super) fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) 
                 num(c.map(|c| c.all.error_at_95))?,
                 num(c.and_then(|c| c.clean.as_ref()).map(|r| r.aurc))?,
                 num(c.and_then(|c| c.corrupted.as_ref()).map(|r| r.aurc))?,
+                num(s.limit.as_ref().and_then(|l| l.rms))?,
+                num(m.efficiency)?,
             ])?;
         }
     }

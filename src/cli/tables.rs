@@ -21,7 +21,9 @@ pub(super) fn states_text(evidential: Option<&EvidentialSummary>, sep: &str) -> 
 }
 
 /// One row per variant and method: the evidential model's states and constructor, then each
-/// method's errors (the paper's figure beside the evidential row).
+/// method's errors (the paper's figure beside the evidential row) and its efficiency (RMS error
+/// over the limit's on the clean frames); then the variant's `limit` row, the information
+/// limit's RMS (what an unbiased estimator cannot beat with these features).
 pub(super) fn error_table(summaries: &[&RunSummary]) -> Table {
     let mut table = Table::new([
         "scenario",
@@ -37,6 +39,7 @@ pub(super) fn error_table(summaries: &[&RunSummary]) -> Table {
         "no est.",
         "left out",
         "fallback",
+        "eff.",
     ]);
     for s in summaries {
         for m in &s.methods {
@@ -56,7 +59,21 @@ pub(super) fn error_table(summaries: &[&RunSummary]) -> Table {
                 format!("{}/{}", m.frames_without_estimate, s.frames),
                 m.frames_with_features_left_out.to_string(),
                 m.frames_fallback.to_string(),
+                m.efficiency.map_or("—".to_string(), |e| format!("{e:.2}")),
             ]);
+        }
+        if let Some(limit) = &s.limit {
+            let mut row = vec![String::new(); 14];
+            row[0] = s.scenario.clone();
+            row[1] = "limit".into();
+            row[2] = s.samples.to_string();
+            row[7] = fmt_mm(limit.rms);
+            row[10] = format!(
+                "{}/{}",
+                limit.frames_without,
+                limit.frames + limit.frames_without
+            );
+            table.push(row);
         }
     }
     table

@@ -15,6 +15,20 @@ pub fn feature_value(i: usize, q: [f64; 2]) -> f64 {
     (frequency * along * std::f64::consts::PI).sin() + 0.3 * (u * u + v * v) + 0.1 * i as f64
 }
 
+/// The gradient (∂/∂x, ∂/∂y, per mm) of [`feature_value`] `i` at `q`: the slopes the
+/// information limit's closed form needs.
+pub fn feature_gradient(i: usize, q: [f64; 2]) -> [f64; 2] {
+    let angle = 0.7 + 1.3 * i as f64;
+    let (u, v) = (q[0] / 19.0, (q[1] - 47.5) / 19.0);
+    let along = angle.cos() * u + angle.sin() * v;
+    let frequency = 1.5 + 0.25 * (i % 4) as f64;
+    let wave = (frequency * along * std::f64::consts::PI).cos() * frequency * std::f64::consts::PI;
+    [
+        (wave * angle.cos() + 0.6 * u) / 19.0,
+        (wave * angle.sin() + 0.6 * v) / 19.0,
+    ]
+}
+
 /// Every one of `features` feature values of pose `q`, each with Gaussian noise of standard
 /// deviation `noise` drawn from `rng`.
 pub fn feature_row(

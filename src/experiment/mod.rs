@@ -8,9 +8,11 @@
 //! [`PoseEstimator::estimate`](crate::estimator::PoseEstimator::estimate). What a run measured is
 //! recorded and written by [`crate::report`].
 
+mod limit;
 mod sample;
 mod workbench;
 
+pub use limit::{frame_bounds, noise_model};
 pub use sample::{sample_trajectory, SampleTrajectory};
 pub use workbench::{Step, Workbench};
 
@@ -25,7 +27,8 @@ use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
 use crate::model_file::Provenance;
 use crate::report::{
-    ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, MethodTimings, RunSummary, Timings,
+    efficiency, ErrorStats, EvidentialSummary, FrameRecord, LimitSummary, MethodSummary,
+    MethodTimings, RunSummary, Timings,
 };
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
@@ -134,7 +137,7 @@ pub fn run(
     // the faults, if any, each test motion on its own stream.
     let plan = scenario.fault_plan();
     let scales = FeatureScale::of_rows(&sample.rows, names.len());
-    let mut tests = Vec::with_capacity(s.tests.len());
+    let mut tests: Vec<TestMotion> = Vec::with_capacity(s.tests.len());
     for (k, motion) in s.tests.iter().enumerate() {
         let label = test_label(k, motion);
         let seed = seed::for_part(master, ScenarioPart::Test(k));
@@ -255,6 +258,12 @@ pub fn run(
         estimators.push(estimator);
     }
 
+    let views: Vec<_> = (tests.iter())
+        .map(|t| (t.1.as_slice(), t.3.as_slice()))
+        .collect();
+    let limits = limit::measure(&estimators, bench, &settings, &training, &views);
+    let limit = limits.map(|found| attach_limits(found, &tests, &mut records, &mut methods));
+
     let evidential = estimators
         .iter()
         .find_map(|e| {
@@ -272,6 +281,7 @@ pub fn run(
         evidential: evidential.map(EvidentialSummary::of),
         methods,
         paper_error: s.paper_error,
+        limit,
         expect: s.expect.clone(),
     };
     Ok(RunOutput {
@@ -285,6 +295,45 @@ pub fn run(
         producer: None,
     })
 }
+
+/// Puts each frame's limit (√ tr I⁻¹) on its records and each method's efficiency on its
+/// summary; the run's limit is over the clean frames.
+fn attach_limits(
+    found: limit::Limits,
+    tests: &[TestMotion],
+    records: &mut [FrameRecord],
+    methods: &mut [MethodSummary],
+) -> LimitSummary {
+    let bound_of = |motion: &str, frame: usize| {
+        let k = tests.iter().position(|t| t.0 == motion)?;
+        *found.per_motion.get(k)?.get(frame)?
+    };
+    for r in records.iter_mut() {
+        r.limit_mm = bound_of(&r.motion, r.frame).map(f64::sqrt);
+    }
+    for m in methods.iter_mut() {
+        let own: Vec<&FrameRecord> = records.iter().filter(|r| r.method == m.method).collect();
+        m.efficiency = efficiency(&own);
+    }
+    let frames: Vec<(Option<f64>, bool)> = (tests.iter().zip(&found.per_motion))
+        .flat_map(|(t, bounds)| {
+            bounds.iter().enumerate().map(|(i, b)| {
+                let corrupted = t.4.as_ref().is_some_and(|l| l[i].corrupted());
+                (*b, corrupted)
+            })
+        })
+        .collect();
+    LimitSummary::of(&frames, found.noise)
+}
+
+/// A test motion as a run holds it: label, truth, times, feature rows, fault labels.
+type TestMotion = (
+    String,
+    Vec<[f64; 2]>,
+    Vec<f64>,
+    Arc<FeatureRows>,
+    Option<Vec<crate::faults::FrameFaults>>,
+);
 
 /// The features of the images a fault changed (`images`, frames `at` of `data`), the external
 /// programs' included: they run on those frames as a dataset of their own.

@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::auc::detection_auc;
 use super::confidence::{ConfidenceSummary, RegionSummary};
+use super::limit::LimitSummary;
 use super::ErrorStats;
 use super::{finite, ReportError};
 use crate::estimator::{EstimateFlags, PoseEstimate};
@@ -51,6 +52,10 @@ pub struct FrameRecord {
     pub flag_set: EstimateFlags,
     /// Ground truth of the faults injected into this frame (`None` in a run without faults).
     pub faults: Option<FrameFaults>,
+    /// The information limit at this frame, √(tr I⁻¹) (mm), the same for every method
+    /// (`None` where I is singular or the run has no limit).
+    #[serde(default)]
+    pub limit_mm: Option<f64>,
 }
 
 impl FrameRecord {
@@ -82,6 +87,7 @@ impl FrameRecord {
             flags: estimate.flag_words(names),
             flag_set: estimate.flags.clone(),
             faults: None,
+            limit_mm: None,
         }
     }
 
@@ -102,7 +108,9 @@ impl FrameRecord {
 /// Writes frame records as CSV (the `frames.csv` of a run, and what `track` prints): one row per
 /// frame and method, the combined group as feature names joined by `+`, empty cells for missing
 /// values; the last two columns are the ground truth of injected faults (the faults that struck,
-/// the features they changed, or `frame` for a dropped frame), empty without faults. Numbers go
+/// the features they changed, or `frame` for a dropped frame), empty without faults; `limit_mm`
+/// is the frame's information limit (empty in `track`'s output, which has no feature maps of
+/// its own to take it from). Numbers go
 /// through [`finite`]: `conflict_level` and `detection_score` may be `inf`, nothing is NaN.
 ///
 /// # Errors
@@ -133,6 +141,7 @@ pub fn write_frames_csv<W: std::io::Write>(
         "changed_features",
         "region_area",
         "region_covers",
+        "limit_mm",
     ])?;
     let joined = |list: &[usize]| {
         list.iter()
@@ -173,6 +182,7 @@ pub fn write_frames_csv<W: std::io::Write>(
             changed,
             num("region_area", r.region_area)?,
             r.region_covers.map(|c| c.to_string()).unwrap_or_default(),
+            num("limit_mm", r.limit_mm)?,
         ])?;
     }
     csv.flush().map_err(csv::Error::from)?;
@@ -230,6 +240,10 @@ pub struct MethodSummary {
     /// Whether it knows when it is wrong: risk–coverage, coverage and abstentions.
     #[serde(default)]
     pub confidence: Option<ConfidenceSummary>,
+    /// Its RMS error over the information limit's on the same clean frames
+    /// ([`super::limit::efficiency`]).
+    #[serde(default)]
+    pub efficiency: Option<f64>,
 }
 
 impl MethodSummary {
@@ -260,6 +274,7 @@ impl MethodSummary {
             faults: FaultSummary::of(records),
             region: RegionSummary::of(records),
             confidence: ConfidenceSummary::of(records),
+            efficiency: None,
         }
     }
 }
@@ -381,6 +396,9 @@ pub struct RunSummary {
     pub methods: Vec<MethodSummary>,
     /// The paper's figure for this setup (the evidential tracker's), when the scenario gives it.
     pub paper_error: Option<f64>,
+    /// The information limit of the clean test frames, when the feature maps could be fitted.
+    #[serde(default)]
+    pub limit: Option<LimitSummary>,
     /// What the scenario expects.
     pub expect: Expectations,
 }
@@ -451,6 +469,7 @@ pub(super) mod tests {
             faults: None,
             region: None,
             confidence: None,
+            efficiency: None,
         }
     }
 
@@ -484,6 +503,7 @@ pub(super) mod tests {
                 method("knn", &[0.4, 0.8], 0),
             ],
             paper_error: None,
+            limit: None,
             expect,
         };
         let missed = summary.regressions();

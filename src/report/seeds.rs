@@ -255,6 +255,7 @@ mod tests {
                 .map(|&(m, e)| crate::report::records::tests::method(m, &[e], 0))
                 .collect(),
             paper_error: None,
+            limit: None,
             expect: Expectations::default(),
         }
     }

@@ -382,6 +382,12 @@ impl Continuous {
         self.surrogate.eval(q, out, None);
     }
 
+    /// Every feature's learned slope (∂f_i/∂x, ∂f_i/∂y) at pose `q` into `jacobian`, the
+    /// values into `values`: the information limit's G (`crate::information`).
+    pub fn feature_slopes_into(&self, q: [f64; 2], values: &mut [f64], jacobian: &mut [[f64; 2]]) {
+        self.surrogate.eval(q, values, Some(jacobian));
+    }
+
     /// Each feature's range over the sample poses.
     pub(crate) fn feature_ranges(&self) -> &[(f64, f64)] {
         &self.ranges
