@@ -359,6 +359,15 @@ fn too_many_features_are_refused_before_anything_runs() {
             && stderr.contains("without \"continuous\" and \"particle_filter\" in `estimators`"),
         "{stderr}"
     );
+    // 64 features are the paper's tracker's most; its temporal form carries one more bit.
+    let stderr = refused(
+        "name = \"wide\"\nestimators = [\"evidential\", \"evidential_temporal\"]\n\
+         [features]\nsize_functions = { lines = 64 }\n[model]\nstates = 3\n",
+    );
+    assert!(
+        stderr.contains("64 features, but the temporal evidential tracker takes at most 63"),
+        "{stderr}"
+    );
 }
 
 #[test]

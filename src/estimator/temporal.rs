@@ -44,6 +44,20 @@ use crate::planar::distance;
 use crate::range::within;
 use crate::track::{PoseRule, SelectionPolicy};
 
+/// Most features the temporal evidential tracker takes: the carried belief is one more bit of
+/// its group masks.
+pub const MAX_TEMPORAL_FEATURES: usize = crate::track::MAX_FEATURES - 1;
+
+/// Why `features` features are too many for the carried belief, if they are.
+fn too_many_features(features: usize) -> Option<String> {
+    (features > MAX_TEMPORAL_FEATURES).then(|| {
+        format!(
+            "{features} features, but the temporal evidential tracker takes at most \
+             {MAX_TEMPORAL_FEATURES} (the carried belief is one more): use fewer features"
+        )
+    })
+}
+
 /// The temporal evidential tracker, fitted: the paper's tracker and the carried belief's
 /// settings.
 #[derive(Debug, Clone)]
@@ -98,6 +112,9 @@ impl TemporalEvidential {
                  lowest_conflict, not splitting (its alternatives are not weighed against the past)"
                     .into(),
             ));
+        }
+        if let Some(why) = too_many_features(data.feature_names.len()) {
+            return Err(EstimatorError::Training(why));
         }
         let inner = Evidential::fit(evidential, data)?;
         let alpha = settings.reliability.unwrap_or(DEFAULT_RELIABILITY);
@@ -195,6 +212,9 @@ impl TemporalEvidential {
         let model = EvidentialModel::from_json(&file.evidential_model)
             .map_err(|e| corrupted(format!("evidential_model: {e}")))?;
         let inner = Evidential::from_model(model)?;
+        if let Some(why) = too_many_features(inner.feature_names().len()) {
+            return Err(corrupted(format!("evidential_model: {why}")).into());
+        }
         if let SelectionPolicy::Splitting { .. } = inner.model().track_settings().selection {
             return Err(corrupted(
                 "evidential_model: the splitting policy is not taken with the past",
@@ -410,12 +430,22 @@ pub(crate) fn check_settings(
             TemporalEvidential::METHOD,
         )),
     )?;
+    if let Some(why) = too_many_features(context.feature_names.len()) {
+        return Err(format!("[features]: {why}"));
+    }
     super::evidential::check_discrete_frames(settings, context)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_carried_belief_leaves_room_for_63_features() {
+        assert_eq!(too_many_features(63), None);
+        let why = too_many_features(64).unwrap();
+        assert!(why.contains("at most 63"), "{why}");
+    }
 
     #[test]
     fn dilation_spreads_each_value_over_its_reach() {
