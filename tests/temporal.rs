@@ -366,8 +366,8 @@ fn without_a_velocity_line_predictions_stay_within_reach_of_the_last_estimate() 
 
 /// `scenarios/coarse.toml` (issue 27): on coarse frames (2 mm mesh, 4 states) the velocity line
 /// drifted and the temporal tracker was worse than per frame. The validation motion now turns the
-/// line off, and the temporal tracker is below the per-frame one on every seed of 1–5; seed 1 sits
-/// within 2.9 % of its measured errors, from above (`sweep --check`) and from below (here).
+/// line off, and the temporal tracker is below the per-frame one on every seed of 1–5; seed 1 is
+/// held to the bands of its expectations (±3 % of its measured errors, both directions).
 #[test]
 fn on_coarse_frames_the_past_does_not_hurt() {
     use evitrack::experiment::{run_all, Workbench};
@@ -376,8 +376,6 @@ fn on_coarse_frames_the_past_does_not_hurt() {
     let set = ScenarioSet::load(std::path::Path::new(path)).unwrap();
     let runs = set.seeded(Some(&SeedList::Count(5))).unwrap();
     let outputs = run_all(&runs, 2, &Workbench::new(), &|_, _, _, _| {});
-    // Measured, seed 1: evidential / evidential_temporal.
-    let measured = [("clean", 1.4534, 1.3514), ("fast", 1.3145, 1.1416)];
     for (run, output) in runs.iter().zip(outputs) {
         let output = output.unwrap_or_else(|e| panic!("{} failed: {e}", run.name()));
         let summary = &output.summary;
@@ -399,15 +397,6 @@ fn on_coarse_frames_the_past_does_not_hurt() {
         if seed == 1 {
             let missed = summary.regressions();
             assert!(missed.is_empty(), "{missed:#?}");
-            let (_, e, t) = *measured
-                .iter()
-                .find(|(v, _, _)| run.name() == format!("coarse-{v}"))
-                .unwrap();
-            assert!(
-                per_frame >= e / 1.029 && temporal >= t / 1.029,
-                "{}",
-                run.name()
-            );
         }
     }
 }

@@ -182,4 +182,13 @@ fn the_occlusion_scenario_meets_its_expectations_and_issue_28s_reading() {
         clean <= 1.5 * gp_clean,
         "clean {clean} against the GP's {gp_clean}"
     );
+    // The README's information limit of the tiles (seed 1) and how far the best methods are.
+    let summary = &runs["occlusion-clean-tiles"].summary;
+    let within = |found: f64, measured: f64| (found / measured - 1.0).abs() <= 0.03;
+    let limit = summary.limit.as_ref().and_then(|l| l.rms).unwrap();
+    assert!(within(limit, 0.016411), "limit {limit} mm");
+    for (name, measured) in [("continuous", 3.3157), ("gp", 3.4234)] {
+        let efficiency = summary.method(name).and_then(|m| m.efficiency).unwrap();
+        assert!(within(efficiency, measured), "{name}: {efficiency}");
+    }
 }
