@@ -73,6 +73,7 @@ impl SweepFile {
     }
 
     fn write(&self, path: &Path) -> Result<()> {
+        report::check_json_numbers(&path.display().to_string(), self)?;
         let json = serde_json::to_string_pretty(self)? + "\n";
         evitrack::atomic::write(path, json.as_bytes())
             .with_context(|| format!("writing {}", path.display()))

@@ -97,9 +97,18 @@ pub fn program_digest(program: &ExternalFeatureConfig) -> Result<String, Externa
 /// # Errors
 /// The error of reading it.
 pub fn file_digest(path: &Path) -> std::io::Result<String> {
+    use std::io::Read;
+    // In pieces: an executable is tens of MB, which a run must not hold for a digest.
+    let mut file = std::fs::File::open(path)?;
     let mut digest = Digest::new();
-    digest.add(&std::fs::read(path)?);
-    Ok(digest.hex())
+    let mut piece = vec![0; 1 << 16];
+    loop {
+        let n = file.read(&mut piece)?;
+        if n == 0 {
+            return Ok(digest.hex());
+        }
+        digest.add(&piece[..n]);
+    }
 }
 
 fn add_program(digest: &mut Digest, program: &ExternalFeatureConfig) -> Result<(), ExternalError> {

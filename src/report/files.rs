@@ -106,6 +106,7 @@ pub fn write_run(
         put(&name, text.as_bytes())?;
     }
     if timings {
+        super::check_json_numbers("timings.json", &output.timings)?;
         let json = serde_json::to_string_pretty(&output.timings)
             .map_err(|e| write_error(&dir.join("timings.json"), e))?;
         put("timings.json", (json + "\n").as_bytes())?;
@@ -163,6 +164,7 @@ pub fn write_run(
         plot_series(&file, &title, "coverage (%)", "risk / mean error", &curves)?;
         written.push(file);
     }
+    super::check_json_numbers(RESULTS_FILE, &output.summary)?;
     let json = serde_json::to_string_pretty(&output.summary)
         .map_err(|e| write_error(&dir.join(RESULTS_FILE), e))?;
     put_file(dir, RESULTS_FILE, (json + "\n").as_bytes(), &mut written)?;

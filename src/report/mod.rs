@@ -5,6 +5,7 @@ mod auc;
 mod confidence;
 mod files;
 pub mod finite;
+mod finite_json;
 mod limit;
 mod plot;
 mod records;
@@ -14,6 +15,7 @@ mod table;
 pub use auc::detection_auc;
 pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
 pub use files::{write_run, RunOutput, PRODUCER_FILE, RESULTS_FILE, SCENARIO_FILE};
+pub use finite_json::check_json_numbers;
 pub use limit::{efficiency, LimitNoise, LimitSummary};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
 pub use records::{

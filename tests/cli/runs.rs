@@ -78,8 +78,8 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
     );
     let table = String::from_utf8_lossy(&out.stdout);
     // One row per variant and method, 3 variants × (evidential, continuous, knn, gp, centre),
-    // in the error table and again in the confidence table.
-    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 30);
+    // in the error table and again in the confidence table, and each variant's `limit` row.
+    assert_eq!(table.lines().filter(|l| l.starts_with("grid-")).count(), 33);
     for file in [
         "sweep.json",
         "sweep.csv",
