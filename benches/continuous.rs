@@ -3,6 +3,9 @@
 //! path of 100 poses. `clean`: a frame at a random pose with the samples' noise, every feature
 //! combined. `faulty`: two features stuck far from their value and a learned threshold, so the
 //! groups below the full one are searched (largest subset). Target (clean): median ≤ 100 µs.
+//! `clean`/`stuck` at 64 features: the same maps, learned threshold; `stuck` has 4 features
+//! stuck 0.6 off (inside their ranges, so only the group levels exclude them). Target (64
+//! features, 4 stuck): median ≤ 10 ms.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::test_maps::{feature_row, workspace_mesh, workspace_points};
 use evitrack::estimator::{Continuous, ContinuousSettings, Labelled, PoseEstimator, TrainingSet};
@@ -10,21 +13,20 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
 
-const FEATURES: usize = 8;
 const NOISE: f64 = 0.002;
 
-fn fitted(per_side: usize, learn: bool) -> Continuous {
+fn fitted(features: usize, per_side: usize, learn: bool) -> Continuous {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let poses = workspace_mesh(per_side);
     let rows: Vec<_> = poses
         .iter()
-        .map(|&q| feature_row(FEATURES, q, NOISE, &mut rng))
+        .map(|&q| feature_row(features, q, NOISE, &mut rng))
         .collect();
     let valid_poses = workspace_points(100, &mut rng);
     let valid_rows: Vec<_> = (valid_poses.iter())
-        .map(|&q| feature_row(FEATURES, q, NOISE, &mut rng))
+        .map(|&q| feature_row(features, q, NOISE, &mut rng))
         .collect();
-    let names: Vec<String> = (0..FEATURES).map(|i| format!("f{i}")).collect();
+    let names: Vec<String> = (0..features).map(|i| format!("f{i}")).collect();
     let mut data = TrainingSet::new(
         &names,
         Labelled {
@@ -43,14 +45,17 @@ fn fitted(per_side: usize, learn: bool) -> Continuous {
     Continuous::fit(&settings, &data).expect("fits")
 }
 
-fn frames(faulty: bool) -> Vec<Vec<Option<f64>>> {
+/// A bench case: name, features, and (feature, offset) of its faulty values.
+type Case<'a> = (&'a str, usize, &'a [(usize, f64)]);
+
+/// 32 frames; `offsets`: (feature, what is added to its value).
+fn frames(features: usize, offsets: &[(usize, f64)]) -> Vec<Vec<Option<f64>>> {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     (workspace_points(32, &mut rng).iter())
         .map(|&q| {
-            let mut row = feature_row(FEATURES, q, NOISE, &mut rng);
-            if faulty {
-                row[1] = row[1].map(|v| v + 0.8);
-                row[6] = row[6].map(|v| v - 0.8);
+            let mut row = feature_row(features, q, NOISE, &mut rng);
+            for &(i, offset) in offsets {
+                row[i] = row[i].map(|v| v + offset);
             }
             row
         })
@@ -59,11 +64,19 @@ fn frames(faulty: bool) -> Vec<Vec<Option<f64>>> {
 
 fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("continuous");
-    for (name, faulty) in [("clean", false), ("faulty", true)] {
-        let model = fitted(20, faulty);
-        let rows = frames(faulty);
+    let two = [(1, 0.8), (6, -0.8)];
+    let four = [(3, 0.6), (20, 0.6), (41, -0.6), (60, 0.6)];
+    let cases: [Case; 4] = [
+        ("clean", 8, &[]),
+        ("faulty", 8, &two),
+        ("clean", 64, &[]),
+        ("stuck", 64, &four),
+    ];
+    for (name, features, offsets) in cases {
+        let model = fitted(features, 20, features == 64 || !offsets.is_empty());
+        let rows = frames(features, offsets);
         let mut k = 0;
-        group.bench_function(BenchmarkId::new(name, "400x8"), |b| {
+        group.bench_function(BenchmarkId::new(name, format!("400x{features}")), |b| {
             b.iter(|| {
                 k = (k + 1) % rows.len();
                 black_box(model.estimate(black_box(&rows[k])).expect("estimates"))

@@ -350,13 +350,22 @@ fn too_many_features_are_refused_before_anything_runs() {
         stderr.contains("65 features") && stderr.contains("at most 64"),
         "{stderr}"
     );
-    // Every method by default: the continuous tracker's own cap, and how to get past it.
+    // The continuous tracker's own cap, and how to get past it; over time, one bit less.
     let stderr = refused(
-        "name = \"wide\"\n[features]\nsize_functions = { lines = 20 }\n[model]\nstates = 3\n",
+        "name = \"wide\"\nestimators = [\"continuous\", \"knn\"]\n[features]\n\
+         size_functions = { lines = 65 }\n[model]\nstates = 3\n",
     );
     assert!(
-        stderr.contains("20 features, but the continuous tracker takes at most 16")
+        stderr.contains("65 features, but the continuous tracker takes at most 64")
             && stderr.contains("without \"continuous\" and \"particle_filter\" in `estimators`"),
+        "{stderr}"
+    );
+    let stderr = refused(
+        "name = \"wide\"\nestimators = [\"continuous_temporal\"]\n[features]\n\
+         size_functions = { lines = 64 }\n[model]\nstates = 3\n",
+    );
+    assert!(
+        stderr.contains("64 features, but the continuous tracker over time takes at most 63"),
         "{stderr}"
     );
     // 64 features are the paper's tracker's most; its temporal form carries one more bit.

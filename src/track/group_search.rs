@@ -49,6 +49,13 @@ pub trait GroupLevels {
     fn levels_grow_exactly(&self) -> bool {
         true
     }
+    /// Whether the search should, before going below a group, drop each candidate whose pair
+    /// with the group is already beyond the threshold (sound by Theorem 4.3; it costs every
+    /// candidate's level up front and pays when levels are costly and a few features conflict
+    /// with many: the size bound then sees only the compatible candidates).
+    fn narrow_candidates(&self) -> bool {
+        false
+    }
 }
 
 /// Feature indices of a group mask, ascending.
@@ -132,6 +139,19 @@ pub fn select_group(
     choose(levels, features, usable_mask, policy, threshold, exhaustive)
 }
 
+/// [`select_group`] over every complete subgraph, whatever the levels: the reference the
+/// pruned search is tested against.
+#[cfg(test)]
+pub(crate) fn select_group_exhaustive(
+    levels: &mut impl GroupLevels,
+    features: usize,
+    usable_mask: GroupMask,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+) -> Selection {
+    choose(levels, features, usable_mask, policy, threshold, true)
+}
+
 /// [`select_group`] by the pruned search, or with `exhaustive` over every complete subgraph.
 fn choose(
     levels: &mut impl GroupLevels,
@@ -197,7 +217,7 @@ fn conflict_graph(
 ) -> Vec<GroupMask> {
     let mut adj = vec![0; f];
     for i in members(usable_mask) {
-        for j in members(usable_mask & !((2 << i) - 1)) {
+        for j in members(usable_mask & !(2u64 << i).wrapping_sub(1)) {
             if threshold.admits(levels.pair_level(i, j)) {
                 adj[i] |= 1 << j;
                 adj[j] |= 1 << i;
@@ -277,9 +297,26 @@ impl<L: GroupLevels> Search<'_, L> {
             rest &= rest - 1;
             let (next, below) = (group | 1 << j, rest & self.adj[j]);
             if visit(self, next, below) {
+                let below = self.compatible(next, below);
                 self.walk(next, below, visit);
             }
         }
+    }
+
+    /// The `candidates` that, added to `group`, stay within the threshold (all of them unless
+    /// the levels ask to narrow): no group holding one of the others is eligible.
+    fn compatible(&mut self, group: GroupMask, candidates: GroupMask) -> GroupMask {
+        // Pairs rarely conflict (two level curves cross): narrow below groups that fix a pose.
+        if !self.levels.narrow_candidates()
+            || self.threshold == ConflictLevel::Infinite
+            || group.count_ones() < 2
+        {
+            return candidates;
+        }
+        let bound = self.threshold.value();
+        members(candidates)
+            .filter(|&k| !Self::beyond(self.level(group | 1 << k), bound))
+            .fold(0, |m, k| m | 1 << k)
     }
 
     /// Of `groups` (in lexicographic order), the first eligible one unless a later one is lower

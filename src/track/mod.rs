@@ -18,6 +18,8 @@ mod tracker_model;
 mod tracking;
 mod tuples;
 
+#[cfg(test)]
+pub(crate) use group_search::select_group_exhaustive;
 pub use group_search::{members, select_group, GroupLevels, GroupMask, Selection};
 pub use past::{group_beside_past, past_outweighs, PastFrame};
 pub use settings::{CheckedTrackSettings, PoseRule, SelectionPolicy, TrackSettings};

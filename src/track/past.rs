@@ -119,6 +119,10 @@ impl<L: GroupLevels> GroupLevels for BesidePast<'_, L> {
         self.levels.levels_grow_exactly()
     }
 
+    fn narrow_candidates(&self) -> bool {
+        self.levels.narrow_candidates()
+    }
+
     /// Never asked: every node was admitted beside the past, so each alone is eligible.
     fn fallback_feature(&self) -> Option<usize> {
         None

@@ -37,6 +37,9 @@ pub(crate) fn check_temporal_settings(
     settings: &crate::estimator::EstimatorSettings,
     context: &crate::estimator::SettingsContext,
 ) -> Result<(), String> {
+    if let Some(why) = super::temporal::too_many_features(context.feature_names.len()) {
+        return Err(format!("[features]: {why}"));
+    }
     crate::estimator::motion::check_temporal(
         &settings.temporal,
         Some((

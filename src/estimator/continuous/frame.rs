@@ -1,11 +1,14 @@
 //! One frame of the continuous evidential tracker: each usable feature's likelihood-based
 //! consonant function on the poses (contour pl_i(q) = exp(−½ z_i(q)²), z_i = (y_i − f_i(q))/σ_i),
 //! group levels of conflict from the height of the contour product,
-//! K_G = −log sup_q Π_{i∈G} pl_i(q) = ½ min_q Σ_{i∈G} z_i(q)², found by Levenberg–Marquardt from
-//! the best sample pose, and the paper's selection policies on top ([`select_group`]).
+//! K_G = −log sup_q Π_{i∈G} pl_i(q) = ½ min_q Σ_{i∈G} z_i(q)², taken over the grid the maps are
+//! tabulated on ([`super::grid_levels`]: exactly monotone, so the selection's pruned search is
+//! sound), the paper's selection policies on top ([`select_group`]), and the chosen group's
+//! estimate refined by Levenberg–Marquardt from the grid's minimum.
 
 use std::collections::HashMap;
 
+use super::grid_levels::GridCache;
 use super::Continuous;
 pub(super) use crate::track::members;
 use crate::track::{select_group, GroupLevels, GroupMask, Selection};
@@ -39,7 +42,7 @@ pub(super) struct PastTerm {
 
 impl PastTerm {
     /// −2 ln c(q) and its gradient.
-    fn chi2(&self, q: [f64; 2]) -> (f64, [f64; 2]) {
+    pub(super) fn chi2(&self, q: [f64; 2]) -> (f64, [f64; 2]) {
         let d = [q[0] - self.centre[0], q[1] - self.centre[1]];
         let distance = d[0].hypot(d[1]);
         let over = (distance - self.reach).max(0.0);
@@ -59,15 +62,17 @@ impl PastTerm {
 
 /// One frame's measurements against the model, with every group fit memoised.
 pub(super) struct Frame<'a> {
-    model: &'a Continuous,
+    pub(super) model: &'a Continuous,
     /// Each feature's value; `None` when it is not usable.
-    values: Vec<Option<f64>>,
+    pub(super) values: Vec<Option<f64>>,
     pub(super) usable_mask: GroupMask,
     fits: HashMap<GroupMask, GroupFit>,
     /// z_i² at every sample pose for the usable features (sample-major, one per feature).
     sample_z2: Vec<f64>,
     /// The carried belief, when tracking over time.
-    past: Option<PastTerm>,
+    pub(super) past: Option<PastTerm>,
+    /// Group levels on the grid computed so far.
+    pub(super) grid: GridCache,
 }
 
 impl<'a> Frame<'a> {
@@ -97,19 +102,24 @@ impl<'a> Frame<'a> {
             fits: HashMap::new(),
             sample_z2,
             past: None,
+            grid: GridCache::default(),
         }
     }
 
     /// The same frame with the carried belief as bit [`Frame::past_bit`] (no fit made yet).
     pub(super) fn with_past(mut self, past: PastTerm) -> Self {
         self.fits.clear();
+        self.grid.clear();
         self.past = Some(past);
         self
     }
 
     /// The mask bit of the carried belief.
     pub(super) fn past_bit(&self) -> GroupMask {
-        1 << self.values.len()
+        // No bit is left beside 64 features; the tracker over time takes at most 63.
+        (1 as GroupMask)
+            .checked_shl(self.values.len() as u32)
+            .unwrap_or(0)
     }
 
     /// Σ_{i∈group} z_i² at pose `q`, with the Jacobian rows of the z_i when asked.
@@ -161,7 +171,7 @@ impl<'a> Frame<'a> {
     }
 
     /// The sample pose with the lowest χ² of `group`, and that χ².
-    fn best_sample(&self, group: GroupMask) -> ([f64; 2], f64) {
+    pub(super) fn best_sample(&self, group: GroupMask) -> ([f64; 2], f64) {
         let d = self.values.len();
         let past = self.past.filter(|_| group & self.past_bit() != 0);
         let poses = self.model.sample_poses();
@@ -178,21 +188,16 @@ impl<'a> Frame<'a> {
         (self.model.sample_poses()[best.0], best.1)
     }
 
-    /// The memoised fit of `group` (usable features only, at least one).
+    /// The memoised fit of `group` (usable features only, at least one), from the minimum of
+    /// its grid level (global over the workspace), else from its best sample pose.
     pub(super) fn fit(&mut self, group: GroupMask) -> GroupFit {
         if let Some(fit) = self.fits.get(&group) {
             return *fit;
         }
-        let (mut start, start_chi2) = self.best_sample(group);
-        // The optimum of the whole frame is often the better start for a large group.
-        if let Some(all) = self.fits.get(&self.usable_mask).copied() {
-            if group != self.usable_mask {
-                let (chi2, _) = self.chi2_at(group, all.pose, None);
-                if chi2 < start_chi2 {
-                    start = all.pose;
-                }
-            }
-        }
+        let start = match self.grid_level(group, f64::INFINITY).point {
+            Some(point) => point,
+            None => self.best_sample(group).0,
+        };
         let fit = self.levenberg_marquardt(group, start);
         self.fits.insert(group, fit);
         fit
@@ -271,13 +276,16 @@ impl GroupLevels for Frame<'_> {
         self.own_level(i).max(self.own_level(j))
     }
 
+    /// The grid level: exact up to the threshold, beyond it only known to be beyond.
     fn group_level(&mut self, group: GroupMask) -> f64 {
-        0.5 * self.fit(group).chi2
+        let limit = self.model.threshold().value();
+        self.grid_level(group, limit).value
     }
 
-    /// A fit may stop in a local minimum, so a group's level can come out above a larger one's.
-    fn levels_grow_exactly(&self) -> bool {
-        false
+    /// A level is a scan of kept grid nodes: costly next to the discrete tracker's, and a stuck
+    /// feature conflicts with every group that fixes the pose.
+    fn narrow_candidates(&self) -> bool {
+        true
     }
 
     fn fallback_feature(&self) -> Option<usize> {

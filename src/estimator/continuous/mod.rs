@@ -10,12 +10,15 @@
 //! pl_i(q) = exp(−½ ((y_i − f_i(q))/σ_i)²) (Shafer's construction; its height is below 1 when no
 //! pose explains the value, so a value outside a feature's range conflicts even alone). Under
 //! Dempster's rule contours multiply, so a group's combined contour is Π pl_i and its level of
-//! conflict K_G = −log sup_q Π pl_i(q) = ½ min_q χ²_G(q). The estimate is the pose of highest
-//! combined plausibility (a continuous maximisation); the plausibility region
+//! conflict K_G = −log sup_q Π pl_i(q) = ½ min_q χ²_G(q), taken over the cells of the grid the
+//! maps are tabulated on ([`grid_levels`]): it grows exactly as features are added, so groups
+//! are found by the same pruned search as the paper's tracker. The estimate is the pose of highest
+//! combined plausibility (Levenberg–Marquardt from the grid's minimum); the plausibility region
 //! {q : Pl(q)/Pl(q̂) ≥ α} is reported as the ellipse of the contour's curvature there.
 //!
 //! Behaviour worth knowing: sample rows with a missing value are dropped; a frame's missing or
-//! non-finite features take no part; at most [`MAX_CONTINUOUS_FEATURES`] features (groups are bit masks).
+//! non-finite features take no part; at most [`MAX_CONTINUOUS_FEATURES`] features (groups are
+//! 64-bit masks).
 //! A frame whose chosen group cannot fix a pose (one feature: a level curve, not a point) has no
 //! bounded region (`region` and `uncertainty_radius` are `None`).
 
@@ -23,6 +26,7 @@ mod checks;
 pub(crate) use checks::{check_settings, check_temporal_settings};
 mod file;
 mod frame;
+mod grid_levels;
 mod grid_share;
 mod surrogate;
 mod temporal;
@@ -39,10 +43,9 @@ pub use surrogate::SurrogateHyperparameters;
 /// their largest (README, "Faults"), against 1.8× for the paper's tracker, so 3 leaves a margin.
 pub const CONTINUOUS_MAX_FACTOR: f64 = 3.0;
 
-/// Largest number of features the continuous tracker takes: its group levels come from local
-/// fits, which may not grow exactly as features are added, so its selection lists every complete
-/// subgraph (2^n of them).
-pub const MAX_CONTINUOUS_FEATURES: usize = 16;
+/// Largest number of features the continuous tracker takes: groups are 64-bit masks (over time,
+/// the carried belief is one more bit, so 63).
+pub const MAX_CONTINUOUS_FEATURES: usize = 64;
 
 use super::inputs::{check_training, frame_values, training_header};
 use super::samples::kept_samples;
@@ -158,6 +161,8 @@ pub struct Continuous {
     ranges: Vec<(f64, f64)>,
     /// The sample poses' bounding box: estimates stay inside.
     bounds: ([f64; 2], [f64; 2]),
+    /// Bounds of the maps over blocks of grid nodes, for the group levels.
+    blocks: grid_levels::Blocks,
 }
 
 impl Continuous {
@@ -326,12 +331,14 @@ impl Continuous {
             })
             .collect();
         let bounds = bounding_box(&file.sample_poses);
+        let blocks = grid_levels::Blocks::new(surrogate.grid(), dim);
         Self {
             file,
             surrogate,
             sample_values,
             ranges,
             bounds,
+            blocks,
         }
     }
 
@@ -415,8 +422,8 @@ impl Continuous {
         }))
     }
 
-    /// Level of conflict of the features in `group` (indices) in this frame, ½ min_q χ²;
-    /// `None` when a named feature is missing.
+    /// Level of conflict of the features in `group` (indices) in this frame, ½ min_q χ² over
+    /// the grid's cells (the level the selection uses); `None` when a named feature is missing.
     ///
     /// # Errors
     /// [`EstimatorError::FeatureCount`].
@@ -427,7 +434,7 @@ impl Continuous {
     ) -> Result<Option<f64>, EstimatorError> {
         Ok(self
             .group_frame(features, group)?
-            .map(|(mut frame, mask)| 0.5 * frame.fit(mask).chi2))
+            .map(|(mut frame, mask)| frame.grid_level(mask, f64::INFINITY).value))
     }
 
     /// The frame of `features` and the mask of `group`; `None` when the group is empty or a
@@ -497,7 +504,7 @@ impl PoseEstimator for Continuous {
         let full = if group == usable {
             level
         } else {
-            0.5 * frame.fit(usable).chi2
+            frame.grid_level(usable, f64::INFINITY).value
         };
         // One feature fixes a level curve, not a point: no bounded region.
         let region = (group.count_ones() >= 2)

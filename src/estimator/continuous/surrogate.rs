@@ -74,6 +74,9 @@ struct Grid {
     table: Arc<Vec<[f64; 4]>>,
 }
 
+/// A grid's origin, step (mm), nodes per axis and table.
+pub(super) type GridView<'a> = ([f64; 2], [f64; 2], [usize; 2], &'a [[f64; 4]]);
+
 /// Most grid nodes along one axis.
 pub(super) const MAX_GRID_NODES: usize = 1000;
 
@@ -169,6 +172,13 @@ impl Surrogate {
     /// raw feature units.
     pub(super) fn eval(&self, q: [f64; 2], values: &mut [f64], jacobian: Option<&mut [[f64; 2]]>) {
         self.grid.eval(q, self.kernels.len(), values, jacobian);
+    }
+
+    /// The grid's origin, step (mm), nodes per axis and table (node-major; per feature f,
+    /// ∂f/∂x, ∂f/∂y, ∂²f/∂x∂y): what the group levels scan (`super::grid_levels`).
+    pub(super) fn grid(&self) -> GridView<'_> {
+        let g = &self.grid;
+        (g.origin, g.step, g.nodes, &g.table)
     }
 
     /// Feature `i`'s value and gradient at `q` from the Gaussian process itself (what the grid

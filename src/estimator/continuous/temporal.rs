@@ -32,6 +32,20 @@ use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
 use crate::track::{group_beside_past, past_outweighs, GroupMask};
 
+/// Most features the continuous tracker over time takes: the carried belief is one more bit.
+pub const MAX_CONTINUOUS_TEMPORAL_FEATURES: usize = super::MAX_CONTINUOUS_FEATURES - 1;
+
+/// Why `features` features are too many for the carried belief, if they are.
+pub(super) fn too_many_features(features: usize) -> Option<String> {
+    (features > MAX_CONTINUOUS_TEMPORAL_FEATURES).then(|| {
+        format!(
+            "{features} features, but the continuous tracker over time takes at most \
+             {MAX_CONTINUOUS_TEMPORAL_FEATURES} (the carried belief is one more): use fewer \
+             features"
+        )
+    })
+}
+
 /// The continuous tracker over time, fitted.
 #[derive(Debug, Clone)]
 pub struct ContinuousTemporal {
@@ -74,6 +88,9 @@ impl ContinuousTemporal {
                  lowest_conflict, not splitting"
                     .into(),
             ));
+        }
+        if let Some(why) = too_many_features(data.feature_names.len()) {
+            return Err(EstimatorError::Training(why));
         }
         let inner = Continuous::fit(continuous, data)?;
         let mut fitted = Self {
@@ -119,6 +136,9 @@ impl ContinuousTemporal {
             }
             other => other,
         })?;
+        if let Some(why) = too_many_features(inner.feature_names().len()) {
+            return Err(corrupted(why).into());
+        }
         Ok(Self { inner, file })
     }
 
@@ -267,7 +287,7 @@ impl MotionTracker for ContinuousMotion<'_> {
                     return Ok(predicted(missing, members(usable).collect()));
                 }
                 let group = with_past | past_bit;
-                (group, 0.5 * frame.fit(group).chi2)
+                (group, frame.grid_level(group, f64::INFINITY).value)
             }
             (false, Some((level, group))) => (group, level),
             (false, None) => return Ok(predicted(missing, Vec::new())),
@@ -306,7 +326,7 @@ impl MotionTracker for ContinuousMotion<'_> {
             uncertainty_radius: region.as_ref().map(|r| r.semi_major),
             group: Some(members(features_only).collect()),
             conflict_level: Some(level),
-            detection_score: Some(0.5 * frame.fit(usable).chi2),
+            detection_score: Some(frame.grid_level(usable, f64::INFINITY).value),
             region,
             covariance: crate::estimator::laplace_covariance(fit.curvature),
             flags: crate::estimator::EstimateFlags {
