@@ -20,7 +20,8 @@
 //! threshold T the cut is 2T: a level is exact when at most T and otherwise only shown to be
 //! beyond T, which is all the selection asks, and a group's kept nodes (their sums) extend to the
 //! group with one more feature above its highest (the search's next step) by one add per node
-//! and sum. Without a threshold the cut is the group's χ² at one node, an upper bound of 2K_G.
+//! and sum. Without a threshold the cut starts at the group's χ² at one node (an upper bound of
+//! 2K_G) and falls to the least node χ² found, blocks taken in increasing order of their bound.
 
 use std::collections::HashMap;
 
@@ -140,7 +141,7 @@ impl Frame<'_> {
             .filter(|_| finite && parent != 0)
         {
             Some(p) => self.extend(p, top, cut),
-            None => self.scan(group, cut),
+            None => self.scan(group, cut, !finite),
         };
         let level = self.minimum(&kept);
         if finite {
@@ -235,26 +236,35 @@ impl Frame<'_> {
         &self.grid.block_bounds
     }
 
-    /// The nodes of `group` whose bound is within `cut`, from the whole grid.
-    fn scan(&mut self, group: GroupMask, cut: f64) -> Kept {
+    /// The nodes of `group` whose bound is within `cut`, from the whole grid; with `tighten`
+    /// (the nodes serve this group's level only), blocks in increasing order of their bound and
+    /// the cut lowered to the least node χ² kept so far (an upper bound of 2K_G).
+    fn scan(&mut self, group: GroupMask, mut cut: f64, tighten: bool) -> Kept {
         let d = self.values.len();
         let (_, _, nodes, _) = self.model.surrogate.grid();
         let counts = self.model.blocks.counts;
         let features: Vec<usize> = members(group).filter(|&i| i < d).collect();
-        let passing: Vec<usize> = {
+        let mut passing: Vec<(f64, usize)> = {
             let bounds = self.block_bounds();
             (0..counts[0] * counts[1])
-                .filter(|&b| {
+                .map(|b| {
                     let row = &bounds[b * d..(b + 1) * d];
-                    features.iter().map(|&i| row[i]).sum::<f64>() <= cut
+                    (features.iter().map(|&i| row[i]).sum::<f64>(), b)
                 })
+                .filter(|&(bound, _)| bound <= cut)
                 .collect()
         };
+        if tighten {
+            passing.sort_by(|a, b| a.0.total_cmp(&b.0));
+        }
         let mut kept = Kept {
             nodes: Vec::new(),
             sums: Vec::new(),
         };
-        for b in passing {
+        for (bound, b) in passing {
+            if bound > cut {
+                break;
+            }
             let (bc, br) = (b % counts[0], b / counts[0]);
             for r in br * BLOCK..((br + 1) * BLOCK).min(nodes[1]) {
                 for c in bc * BLOCK..((bc + 1) * BLOCK).min(nodes[0]) {
@@ -265,6 +275,9 @@ impl Frame<'_> {
                         sums[6] <= cut
                     });
                     if within {
+                        if tighten {
+                            cut = cut.min(with_slack(sums[0]));
+                        }
                         kept.nodes.push(n as u32);
                         kept.sums.push(sums);
                     }
