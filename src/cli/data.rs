@@ -155,7 +155,7 @@ fn parse_motion(text: &str) -> Result<Motion> {
 }
 
 /// The base scenario or the named sweep variant of a scenario file.
-fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenario> {
+pub(crate) fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenario> {
     let set = ScenarioSet::load(path)?;
     let Some(name) = variant else {
         return Ok(set.base);

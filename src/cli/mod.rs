@@ -6,6 +6,7 @@ mod model;
 mod producer;
 mod programs;
 mod runs;
+mod scenario_cmd;
 mod sweep;
 mod tables;
 mod train_settings;
@@ -65,6 +66,9 @@ enum Command {
     /// Train an evidential model on a dataset of the sample trajectory: one HMM per feature,
     /// its frame of discernment and its refining onto the sample poses.
     Train(model::TrainArgs),
+    /// Print a scenario as it runs, every setting filled in with a comment above it (without a
+    /// file: the built-in default, `--defaults`).
+    Scenario(scenario_cmd::ScenarioArgs),
     /// Track a dataset with a trained model: per-frame estimates to CSV, error summary when the
     /// dataset has ground truth.
     Track(model::TrackArgs),
@@ -109,6 +113,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Features(args) => data::features(&args),
         Command::Train(args) => model::train(&args),
         Command::Track(args) => model::track(&args),
+        Command::Scenario(args) => scenario_cmd::scenario(&args),
     }
 }
 
