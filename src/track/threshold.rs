@@ -26,7 +26,7 @@ pub enum ThresholdRule {
 }
 
 /// The default rule's factor over the largest clean validation level. On held-out clean motions
-/// (README, "Faults": 10 validation paths, 500 test frames each) the paper's tracker's largest
+/// (docs/results.md, "Faults": 10 validation paths, 500 test frames each) the paper's tracker's largest
 /// level reached 1.82× the validation motion's with 24 states, so 2 keeps every such frame
 /// whole; a larger factor lets one stuck feature into the group more often.
 pub const DEFAULT_MAX_FACTOR: f64 = 2.0;

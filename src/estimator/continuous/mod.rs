@@ -36,7 +36,7 @@ pub use surrogate::SurrogateHyperparameters;
 
 /// The default threshold's factor over the largest validation level. Its noise scales are fitted
 /// on the same validation frames, so those levels run low: held-out clean motions reached 2.4×
-/// their largest (README, "Faults"), against 1.8× for the paper's tracker, so 3 leaves a margin.
+/// their largest (docs/results.md, "Faults"), against 1.8× for the paper's tracker, so 3 leaves a margin.
 pub const CONTINUOUS_MAX_FACTOR: f64 = 3.0;
 
 /// Largest number of features the continuous tracker takes: its group levels come from local
