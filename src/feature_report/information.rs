@@ -12,6 +12,9 @@ use super::{FeatureEntry, FeatureReport, FeatureReportError, Grid, Inputs};
 /// Most poses the neighbour separation is measured on (its pairs cost O(n²)).
 const MAX_NEIGHBOUR_POSES: usize = 5000;
 
+/// Fewest held-out frames inside a feature's range that σ is measured on.
+const MIN_INSIDE: usize = 5;
+
 /// The frames the maps and methods are fitted on and those σ and errors are measured on.
 pub(super) struct Split {
     pub fit_poses: Vec<[f64; 2]>,
@@ -173,11 +176,32 @@ pub(super) fn fill(
     let mut usable = Vec::new();
     let mut sigmas = Vec::new();
     for (i, entry) in report.features.iter_mut().enumerate() {
-        let r: Vec<f64> = residuals.iter().filter_map(|row| row[i]).collect();
-        if r.is_empty() {
+        // Only frames where the value lies inside its range: a feature held at a bound (a tile
+        // the arm is not in reads exactly 0) has no noise there, and those frames would make σ
+        // tiny and the information where it varies huge.
+        let inside = |y: f64| {
+            entry
+                .min
+                .zip(entry.max)
+                .is_none_or(|(lo, hi)| y > lo && y < hi)
+        };
+        let r: Vec<f64> = (residuals.iter().zip(&split.held_rows))
+            .filter_map(|(res, row)| row[i].filter(|&y| inside(y)).and(res[i]))
+            .collect();
+        let sigma = if r.len() >= MIN_INSIDE {
+            (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt()
+        } else if residuals.iter().any(|row| row[i].is_some()) {
+            // Too few held-out frames where it varies: the maps' own leave-one-out scale.
+            notes.push(format!(
+                "`{}`: {} held-out frames inside its range; σ is the feature map's \
+                 leave-one-out residual on the fitted frames",
+                entry.name,
+                r.len()
+            ));
+            continuous.residual_scales()[i]
+        } else {
             continue;
-        }
-        let sigma = (r.iter().map(|v| v * v).sum::<f64>() / r.len() as f64).sqrt();
+        };
         entry.sigma = Some(sigma);
         if sigma > 0.0 && !constant(entry) {
             usable.push(i);

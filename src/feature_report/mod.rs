@@ -16,7 +16,9 @@
 //! - **With ground truth** (`information.rs`): the feature maps are the continuous tracker's
 //!   surrogates fitted on the even frames, and σ each feature's RMS residual y − f(q) on the odd
 //!   frames (with a separate validation dataset: fitted on every frame, residuals on the
-//!   validation frames). Information over a grid of the workspace: a feature's own Fisher
+//!   validation frames), over the frames where its value lies strictly inside its range (a tile
+//!   without the arm reads exactly 0, noise-free; fewer than 5 such frames: the maps'
+//!   leave-one-out scale). Information over a grid of the workspace: a feature's own Fisher
 //!   information is |∇f|²/σ² (the trace of its term of I); its **share** is its sum over the grid
 //!   over every feature's. As the features correlate, the report also gives what leaving it out
 //!   costs the full-covariance Cramér–Rao limit (RMS over the grid, relative). The **neighbour
