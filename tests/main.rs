@@ -10,6 +10,7 @@ mod dataset;
 mod evidence;
 mod external_features;
 mod faults;
+mod feature_report;
 mod features;
 mod front_door;
 mod fuzz_corpus;

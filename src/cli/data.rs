@@ -138,9 +138,11 @@ pub struct FeaturesArgs {
     /// configuration's. Repeatable.
     #[arg(long = "feature-program", value_name = "FILE.toml")]
     feature_program: Vec<PathBuf>,
-    /// Output CSV file (default: standard output).
+    /// Output CSV file (default: standard output); with --report, a folder.
     #[arg(long)]
     out: Option<PathBuf>,
+    #[command(flatten)]
+    report: super::feature_report::ReportArgs,
 }
 
 fn parse_motion(text: &str) -> Result<Motion> {
@@ -362,6 +364,15 @@ pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
         .extend(super::programs::read_programs(&args.feature_program)?);
     let set = config.check()?;
     let rows = extract_with_progress(&set, &dataset, &what)?;
+    if args.report.report {
+        return super::feature_report::report(
+            &args.report,
+            &dataset,
+            &set,
+            &rows,
+            args.out.as_deref(),
+        );
+    }
     let mut csv = csv::Writer::from_writer(Vec::new());
     let with_truth = dataset.frames.iter().all(|f| f.truth.is_some());
     let mut header = vec!["file".to_string(), "t".to_string()];

@@ -1,6 +1,7 @@
 //! The `evitrack` command line: one room per command group, shared helpers here.
 
 mod data;
+mod feature_report;
 mod merge;
 mod model;
 mod producer;

@@ -7,7 +7,7 @@ mod files;
 pub mod finite;
 mod finite_json;
 mod limit;
-mod plot;
+pub(crate) mod plot;
 mod records;
 mod seeds;
 mod table;

@@ -10,12 +10,12 @@ use plotters::style::{register_font, FontStyle};
 
 use super::ReportError;
 
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 const SIZE: (u32, u32) = (900, 760);
 static REGISTER_FONT: Once = Once::new();
 
 /// plotters renders text only through registered fonts when system fonts are off.
-fn ensure_font() {
+pub(crate) fn ensure_font() {
     REGISTER_FONT.call_once(|| {
         // The embedded font is a valid TTF, so registration cannot fail in practice; if it did,
         // drawing text would report the error through `ReportError::Plot`.
