@@ -10,9 +10,9 @@ use super::{Finding, ReportError, RunSummary, SeedReport, Verdict};
 fn tables(page: &mut Page, summaries: &[&RunSummary]) {
     page.heading(2, "Errors");
     page.paragraph(
-        "Errors in mm over the test frames with an estimate; `limit` is the information limit's \
-         RMS (what an unbiased estimator cannot beat with these features), `eff.` each method's \
-         RMS error over it.",
+        "Errors in mm over the test frames with an estimate; the row \"limit\" is the information \
+         limit's RMS (what an unbiased estimator cannot beat with these features), \"eff.\" each \
+         method's RMS error over it.",
     );
     page.table(&error_table(summaries));
     if let Some(faults) = fault_table(summaries) {
@@ -143,8 +143,8 @@ pub fn sweep_page(sweep: &SweepPage<'_>, plots: &[Written]) -> Result<String, Re
         page.table(&findings);
     } else {
         page.paragraph(
-            "One seed per variant: no intervals. Run the sweep with `--seeds 10` to know \
-             which differences are measurable.",
+            "One seed per variant: no intervals. Run the sweep with --seeds 10 to know which \
+             differences are measurable.",
         );
     }
     page.paragraph("The tables below are each variant's first seed.");

@@ -11,6 +11,9 @@ use super::{MARGIN, SIZE, X_LABEL_AREA, Y_LABEL_AREA};
 use crate::planar::Rect;
 use crate::report::FrameRecord;
 
+/// Regions drawn per plot at most.
+const MAX_REGIONS: usize = 40;
+
 /// What a track plot shows besides the frames.
 #[derive(Debug, Clone, Copy)]
 pub struct TrackPlot<'a> {
@@ -23,7 +26,8 @@ pub struct TrackPlot<'a> {
 }
 
 /// The frames of one motion and method (in time order): the true path (grey), each estimate
-/// linked to its truth, each calibrated region drawn as the circle of its area, struck frames
+/// linked to its truth, calibrated regions (of at most [`MAX_REGIONS`] frames spread evenly)
+/// drawn as circles of their area, struck frames
 /// ringed in red and abstentions crossed; the axes have equal scales and the legend its own
 /// column.
 pub fn plot_trajectory(
@@ -87,8 +91,10 @@ pub fn plot_trajectory(
                 .map_err(|e| plot_error(path, e))?;
             entries.push(("workspace".to_string(), Mark::Line(WORKSPACE)));
         }
-        // Regions first, faint, so that the paths stay on top.
-        let regions = frames.iter().filter_map(|r| {
+        // Regions first, faint, so that the paths stay on top; at most about 40 of them, evenly
+        // spread, or a long motion's regions cover everything.
+        let stride = frames.len().div_ceil(MAX_REGIONS).max(1);
+        let regions = frames.iter().step_by(stride).filter_map(|r| {
             let (p, area) = (r.estimate?, r.region_area?);
             let radius = (area / std::f64::consts::PI).sqrt() / mm_per_px;
             (!r.flag_set.abstained && radius.is_finite())
