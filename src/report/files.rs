@@ -63,7 +63,7 @@ pub const PRODUCER_FILE: &str = "producer.json";
 /// `timings.json` when `timings` is set (wall times differ between runs, everything else is
 /// byte-identical for a scenario and seed), the plots (`errors-<motion>.png`, one
 /// `track-<motion>.png` per test motion and method — the other methods' end in `-<method>` —,
-/// `risk-coverage.png`, `roc.png` with faults: [`super::run_plots`]), `report.html` (tables,
+/// `risk-coverage.png`, `roc.png` with faults), `report.html` (tables,
 /// expectations, plots embedded), and last `results.json`, so that a folder with it holds a finished run. Returns the
 /// files written.
 pub fn write_run(

@@ -26,7 +26,7 @@ pub struct TrackPlot<'a> {
 }
 
 /// The frames of one motion and method (in time order): the true path (grey), each estimate
-/// linked to its truth, calibrated regions (of at most [`MAX_REGIONS`] frames spread evenly)
+/// linked to its truth, calibrated regions (of at most 40 frames spread evenly)
 /// drawn as circles of their area, struck frames
 /// ringed in red and abstentions crossed; the axes have equal scales and the legend its own
 /// column.
