@@ -4,6 +4,7 @@ use std::io::Write;
 use std::process::{Command, Output, Stdio};
 
 mod outputs;
+mod report;
 mod runs;
 mod shards;
 

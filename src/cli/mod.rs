@@ -294,11 +294,7 @@ pub(crate) fn load_scenarios(path: Option<&Path>) -> Result<ScenarioSet> {
     }
 }
 
-pub(crate) fn fmt_mm(value: Option<f64>) -> String {
-    value
-        .map(|v| format!("{v:.4}"))
-        .unwrap_or_else(|| "—".into())
-}
+pub(crate) use evitrack::report::tables::fmt_mm;
 
 /// Creates `dir` and proves it writable before any work, so that a run does not compute for
 /// minutes and then find `--out` read-only.

@@ -293,6 +293,7 @@ pub fn run(
         timings,
         scenario_toml: scenario.to_toml()?,
         producer: None,
+        workspace: Some(sim.geometry.workspace),
     })
 }
 
