@@ -378,7 +378,10 @@ pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
                 .map(|v| v.map(|v| v.to_string()).unwrap_or_default()),
         );
         if let (true, Some(truth)) = (with_truth, frame.truth) {
-            record.extend([truth.x, truth.y, truth.theta1, truth.theta2].map(|v| v.to_string()));
+            record.extend([truth.x, truth.y].map(|v| v.to_string()));
+            // Empty angle cells for a frame without them (a real object has none).
+            let angles = truth.angles.map(|a| a.map(|v| v.to_string()));
+            record.extend(angles.unwrap_or_default());
         }
         csv.write_record(&record)?;
     }

@@ -1,6 +1,7 @@
 //! The `evitrack` command line: one room per command group, shared helpers here.
 
 mod data;
+mod dataset_cmd;
 mod merge;
 mod model;
 mod producer;
@@ -57,6 +58,9 @@ enum Command {
     Combine(data::CombineArgs),
     /// Simulate a motion and write a dataset folder (PNG frames, poses.csv, manifest.json).
     Simulate(data::SimulateArgs),
+    /// Bring your own frames: `dataset init FOLDER` makes a folder of PNGs a dataset,
+    /// `dataset check FOLDER` reports every problem of one.
+    Dataset(dataset_cmd::DatasetArgs),
     /// Render one frame at a pose (mm, robot frame), for developing features by eye.
     Render(data::RenderArgs),
     /// Extract the features of every frame of a dataset into a CSV (one row per frame, one
@@ -106,6 +110,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Merge(args) => merge::merge(&args),
         Command::Simulate(args) => data::simulate(&args),
         Command::Render(args) => data::render(&args),
+        Command::Dataset(args) => dataset_cmd::dataset(&args),
         Command::Features(args) => data::features(&args),
         Command::Train(args) => model::train(&args),
         Command::Track(args) => model::track(&args),
