@@ -6,6 +6,7 @@ mod merge;
 mod model;
 mod producer;
 mod programs;
+mod progress;
 mod runs;
 mod sweep;
 mod tables;
@@ -66,8 +67,8 @@ enum Command {
     /// Extract the features of every frame of a dataset into a CSV (one row per frame, one
     /// column per feature, plus the ground truth when the dataset has it).
     Features(data::FeaturesArgs),
-    /// Train an evidential model on a dataset of the sample trajectory: one HMM per feature,
-    /// its frame of discernment and its refining onto the sample poses.
+    /// Train any registered method (`--method`, default `evidential`) on a dataset of the sample
+    /// trajectory and write its self-contained model file.
     Train(model::TrainArgs),
     /// Track a dataset with a trained model: per-frame estimates to CSV, error summary when the
     /// dataset has ground truth.

@@ -217,7 +217,7 @@ pub(super) fn seed_tables(report: &SeedReport) -> String {
         "right",
         "seeds",
         "left − right ± 95 % (mm)",
-        "verdict",
+        "claim",
     ]);
     for f in &report.findings {
         let side = |s: &evitrack::report::Side| format!("{} {}", s.scenario, s.method);
@@ -227,7 +227,7 @@ pub(super) fn seed_tables(report: &SeedReport) -> String {
             side(&f.comparison.right),
             f.difference.n.to_string(),
             f.difference.text(4),
-            f.verdict.text().to_string(),
+            f.statement(),
         ]);
     }
     format!("{variants}\n{findings}")

@@ -14,7 +14,9 @@ mod table;
 
 pub use auc::detection_auc;
 pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
-pub use files::{write_run, RunOutput, PRODUCER_FILE, RESULTS_FILE, SCENARIO_FILE};
+pub use files::{
+    model_file_name, write_run, RunOutput, PRODUCER_FILE, RESULTS_FILE, SCENARIO_FILE,
+};
 pub use finite_json::check_json_numbers;
 pub use limit::{efficiency, LimitNoise, LimitSummary};
 pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
@@ -22,7 +24,7 @@ pub use records::{
     write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,
     RunSummary, Timings,
 };
-pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
+pub use seeds::{AcrossSeeds, Claim, Comparison, Finding, Interval, SeedReport, Side, Verdict};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};
