@@ -225,8 +225,7 @@ fn read_positions(
         .enumerate()
         .map(|(k, f)| (f.as_str(), k))
         .collect();
-    let mut count = 0;
-    for rec in rdr.records() {
+    for (count, rec) in rdr.records().enumerate() {
         let rec = rec.map_err(|e| {
             let line = e.position().map_or(0, |p| p.line());
             row_err(line, format!("unreadable row: {e}"))
@@ -238,7 +237,6 @@ fn read_positions(
             })?,
             None => count,
         };
-        count += 1;
         if k >= files.len() {
             return Err(row_err(
                 line,
