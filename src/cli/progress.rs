@@ -49,9 +49,12 @@ pub(super) fn stage_text(stage: &str, done: usize, total: usize) -> String {
     }
 }
 
-/// `seconds` as `1h02m`, `3m05s` or `42s`.
+/// `seconds` as `1h02m`, `3m05s`, `42s` or `0.4s`.
 fn duration_text(seconds: f64) -> String {
-    let s = seconds.max(0.0).round() as u64;
+    if seconds < 9.95 {
+        return format!("{:.1}s", seconds.max(0.0));
+    }
+    let s = seconds.round() as u64;
     match s {
         0..=59 => format!("{s}s"),
         60..=3599 => format!("{}m{:02}s", s / 60, s % 60),
@@ -74,6 +77,8 @@ impl StageBars {
                     .progress_chars("=> "),
             );
             overall.set_message(", time left unknown");
+            // Its clock moves between finished runs.
+            overall.enable_steady_tick(Duration::from_secs(1));
             Terminal {
                 multi,
                 overall,
@@ -229,6 +234,7 @@ mod tests {
     #[test]
     fn durations_read_as_a_person_would_say_them() {
         assert_eq!(duration_text(42.4), "42s");
+        assert_eq!(duration_text(0.44), "0.4s");
         assert_eq!(duration_text(185.0), "3m05s");
         assert_eq!(duration_text(3720.0), "1h02m");
     }
