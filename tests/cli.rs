@@ -3,6 +3,7 @@
 use std::io::Write;
 use std::process::{Command, Output, Stdio};
 
+mod dataset_cmd;
 mod outputs;
 mod report;
 mod runs;

@@ -2,10 +2,12 @@
 
 mod data;
 mod feature_report;
+mod dataset_cmd;
 mod merge;
 mod model;
 mod producer;
 mod programs;
+mod progress;
 mod runs;
 mod scenario_cmd;
 mod sweep;
@@ -59,13 +61,16 @@ enum Command {
     Combine(data::CombineArgs),
     /// Simulate a motion and write a dataset folder (PNG frames, poses.csv, manifest.json).
     Simulate(data::SimulateArgs),
+    /// Bring your own frames: `dataset init FOLDER` makes a folder of PNGs a dataset,
+    /// `dataset check FOLDER` reports every problem of one.
+    Dataset(dataset_cmd::DatasetArgs),
     /// Render one frame at a pose (mm, robot frame), for developing features by eye.
     Render(data::RenderArgs),
     /// Extract the features of every frame of a dataset into a CSV (one row per frame, one
     /// column per feature, plus the ground truth when the dataset has it).
     Features(data::FeaturesArgs),
-    /// Train an evidential model on a dataset of the sample trajectory: one HMM per feature,
-    /// its frame of discernment and its refining onto the sample poses.
+    /// Train any registered method (`--method`, default `evidential`) on a dataset of the sample
+    /// trajectory and write its self-contained model file.
     Train(model::TrainArgs),
     /// Print a scenario as it runs, every setting filled in with a comment above it (without a
     /// file: the built-in default, `--defaults`).
@@ -111,6 +116,7 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Merge(args) => merge::merge(&args),
         Command::Simulate(args) => data::simulate(&args),
         Command::Render(args) => data::render(&args),
+        Command::Dataset(args) => dataset_cmd::dataset(&args),
         Command::Features(args) => data::features(&args),
         Command::Train(args) => model::train(&args),
         Command::Track(args) => model::track(&args),

@@ -9,7 +9,7 @@ use clap::Args;
 
 use super::ensure_writable;
 use super::producer::Producer;
-use super::runs::StageBars;
+use super::progress::StageBars;
 use super::tables::{evidential_of, print_tables, seed_tables, states_text};
 use evitrack::experiment::{self, Workbench};
 use evitrack::report::{self, finite, write_run, RunSummary};
@@ -118,6 +118,19 @@ fn earlier_run(dir: &Path, run: &CheckedScenario, producer: &Producer) -> Earlie
     match producer.differs_from(earlier.as_ref()) {
         None => Earlier::Kept(Box::new(summary)),
         Some(why) => Earlier::Stale(why),
+    }
+}
+
+/// How many runs a sweep has, how many ran now and how many it kept from an earlier sweep.
+fn runs_text(total: usize, ran: usize, kept: usize) -> String {
+    let runs = |n: usize| format!("{n} run{}", if n == 1 { "" } else { "s" });
+    match (ran, kept) {
+        (_, 0) => format!("{}, all run now,", runs(total)),
+        (0, _) => format!("{}, all kept from the earlier sweep,", runs(total)),
+        _ => format!(
+            "{} ({ran} run now, {kept} kept from the earlier sweep)",
+            runs(total)
+        ),
     }
 }
 
@@ -327,9 +340,8 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
         failures.push(format!("{error:#}"));
     }
     eprintln!(
-        "{} runs ({} run now) in {elapsed:.1} s on {jobs} jobs; per-run outputs in {}/<variant>/{}",
-        file.runs.len(),
-        todo.len(),
+        "{} in {elapsed:.1} s on {jobs} jobs; per-run outputs in {}/<variant>/{}",
+        runs_text(labels.len(), todo.len(), kept),
         args.out.display(),
         if seeded { "seed-<seed>/" } else { "" }
     );

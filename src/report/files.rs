@@ -56,10 +56,16 @@ pub const SCENARIO_FILE: &str = "scenario.toml";
 /// What produced a run folder's results ([`RunOutput::producer`]).
 pub const PRODUCER_FILE: &str = "producer.json";
 
+/// The name of a run's model file of `method`: `model-<method>.json` for every method (until
+/// issue 31 the evidential tracker's was `model.json`; such files still load, by any name).
+pub fn model_file_name(method: &str) -> String {
+    format!("model-{method}.json")
+}
+
 /// Writes a run's outputs into `dir`, each file atomically: `scenario.toml` (the scenario as run),
 /// `frames.csv` (one row per frame and method), `samples.csv` (the sample poses and the adaptive
 /// round that added each), `producer.json` (what produced it, when the caller says), one self-contained model file per method that `evitrack track` reads
-/// (`model.json` for the evidential tracker, `model-<method>.json` for the others), one
+/// ([`model_file_name`]: `model-<method>.json`, the evidential tracker's too), one
 /// `timings.json` when `timings` is set (wall times differ between runs, everything else is
 /// byte-identical for a scenario and seed), the plots (`errors-<motion>.png`, one
 /// `track-<motion>.png` per test motion and method — the other methods' end in `-<method>` —,
@@ -100,10 +106,7 @@ pub fn write_run(
     put("samples.csv", samples.as_bytes())?;
 
     for estimator in &output.estimators {
-        let name = match estimator.method() {
-            "evidential" => "model.json".to_string(),
-            other => format!("model-{other}.json"),
-        };
+        let name = model_file_name(estimator.method());
         let text = estimator
             .to_json()
             .map_err(|e| write_error(&dir.join(&name), e))?;

@@ -19,7 +19,9 @@ pub mod tables;
 
 pub use auc::{detection_auc, roc_curve};
 pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
-pub use files::{write_run, RunOutput, PRODUCER_FILE, REPORT_FILE, RESULTS_FILE, SCENARIO_FILE};
+pub use files::{
+    model_file_name, write_run, RunOutput, PRODUCER_FILE, REPORT_FILE, RESULTS_FILE, SCENARIO_FILE,
+};
 pub use finite_json::check_json_numbers;
 pub use limit::{efficiency, LimitNoise, LimitSummary};
 pub use pages::{run_page, sweep_page, SweepPage};
@@ -32,9 +34,9 @@ pub use records::{
     write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,
     RunSummary, Timings,
 };
-pub use run_plots::Written;
-pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
-pub use sweep_plots::{write_sweep_plots, SweepPlots};
+pub use files::{
+    model_file_name, write_run, RunOutput, PRODUCER_FILE, REPORT_FILE, RESULTS_FILE, SCENARIO_FILE,
+};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};

@@ -3,7 +3,7 @@
 use super::html::Page;
 use super::run_plots::Written;
 use super::tables::{confidence_table, error_table, fault_table, seed_table_parts};
-use super::{Finding, ReportError, RunSummary, SeedReport, Verdict};
+use super::{Finding, ReportError, RunSummary, SeedReport};
 
 /// The tables of `summaries` (errors with the limit rows, faults, confidence), with a line on
 /// how to read each.
@@ -160,37 +160,14 @@ fn claim(finding: &Finding) -> (String, Option<&'static str>) {
     let name = &finding.comparison.name;
     let (left, right) = (&finding.comparison.left, &finding.comparison.right);
     let sides = format!(
-        "{} {} − {} {} = {} mm over {} seeds",
-        left.scenario,
-        left.method,
-        right.scenario,
-        right.method,
-        finding.difference.text(4),
-        finding.difference.n
+        "{} {} − {} {}, {} seeds",
+        left.scenario, left.method, right.scenario, right.method, finding.difference.n
     );
-    let expected = if name.contains('<') {
-        Some(Verdict::LeftLower)
-    } else if name.contains('>') {
-        Some(Verdict::LeftHigher)
-    } else if name.contains('=') {
-        Some(Verdict::NoMeasurableEffect)
-    } else {
-        None
-    };
-    let (words, class) = match (finding.verdict, expected) {
-        (Verdict::TooFewSeeds, _) => ("cannot be judged on one seed (run with --seeds)", "open"),
-        (v, Some(e)) if v == e && e == Verdict::NoMeasurableEffect => {
-            ("holds: no measurable difference", "holds")
-        }
-        (v, Some(e)) if v == e => ("holds: the interval excludes zero", "holds"),
-        (Verdict::NoMeasurableEffect, Some(_)) => ("not shown: the interval contains zero", "open"),
-        (_, Some(_)) => (
-            "does not hold: the measured difference goes the other way",
-            "fails",
-        ),
-        (Verdict::LeftLower, None) => ("measured: the left side is lower", "open"),
-        (Verdict::LeftHigher, None) => ("measured: the left side is higher", "open"),
-        (_, None) => ("no measurable difference", "open"),
+    let words = finding.statement();
+    let class = match finding.holds() {
+        Some(true) => "holds",
+        Some(false) => "fails",
+        None => "open",
     };
     (format!("{name}: {words} ({sides})"), Some(class))
 }
@@ -198,7 +175,7 @@ fn claim(finding: &Finding) -> (String, Option<&'static str>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::{Comparison, Interval, Side};
+    use crate::report::{Comparison, Interval, Side, Verdict};
 
     fn finding(name: &str, mean: f64, half: Option<f64>, verdict: Verdict) -> Finding {
         let side = |s: &str| Side {

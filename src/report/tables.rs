@@ -214,7 +214,7 @@ pub fn seed_table_parts(report: &SeedReport) -> (Table, Table) {
         "right",
         "seeds",
         "left − right ± 95 % (mm)",
-        "verdict",
+        "claim",
     ]);
     for f in &report.findings {
         let side = |s: &Side| format!("{} {}", s.scenario, s.method);
@@ -224,7 +224,7 @@ pub fn seed_table_parts(report: &SeedReport) -> (Table, Table) {
             side(&f.comparison.right),
             f.difference.n.to_string(),
             f.difference.text(4),
-            f.verdict.text().to_string(),
+            f.statement(),
         ]);
     }
     (variants, findings)

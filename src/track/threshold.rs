@@ -21,7 +21,7 @@ pub enum ThresholdRule {
     Quantile(f64),
     /// This factor (≥ 1) times the largest finite level: the clean validation frames all keep
     /// their features, and the factor covers the higher levels of longer, unseen clean motions
-    /// ([`DEFAULT_MAX_FACTOR`]). The default.
+    /// (`DEFAULT_MAX_FACTOR`). The default.
     ValidationMax(f64),
 }
 

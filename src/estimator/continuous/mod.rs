@@ -71,7 +71,7 @@ pub struct ContinuousSettings {
     pub conflict_threshold: ConflictLevel,
     /// Learn the threshold on the validation motion (§4.3); ignored without one.
     pub learn_threshold: bool,
-    /// How it is learned (default: [`CONTINUOUS_MAX_FACTOR`] × the largest validation level;
+    /// How it is learned (default: `CONTINUOUS_MAX_FACTOR` × the largest validation level;
     /// the 0.99 quantile left 10 of 200 clean frames without a feature).
     pub threshold_rule: ThresholdRule,
     /// Share of poses the plausibility region should cover, in (0, 1): the region's level is

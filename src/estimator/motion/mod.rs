@@ -45,7 +45,7 @@ pub struct TemporalSettings {
     #[serde(skip_serializing_if = "is_true")]
     pub learn_velocity: bool,
     /// Spread σ (mm) of the velocity prediction's consonant belief on the refined sample poses
-    /// ([`refine`]); `None`: half the sample poses' typical spacing, widened by
+    /// (`refine`); `None`: half the sample poses' typical spacing, widened by
     /// `evidential_temporal` to the RMS of the line's last five misses.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub velocity_spread: Option<f64>,

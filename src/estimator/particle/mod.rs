@@ -46,13 +46,13 @@ pub struct ParticleSettings {
     /// time").
     pub particles: usize,
     /// σ (mm/s) of each particle's Gaussian step per axis (the step is σ·Δt); `None` learns it
-    /// on the validation motion ([`learn::MOTION_NOISE_CANDIDATES`]), or takes
-    /// [`DEFAULT_MOTION_NOISE`] without one.
+    /// on the validation motion (`learn::MOTION_NOISE_CANDIDATES`), or takes
+    /// `DEFAULT_MOTION_NOISE` without one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub motion_noise: Option<f64>,
     /// Share ε of each feature's likelihood that is uniform over its range; `None` learns it
-    /// on the validation motion ([`learn::OUTLIER_SHARE_CANDIDATES`]), or takes
-    /// [`DEFAULT_OUTLIER_SHARE`] without one.
+    /// on the validation motion (`learn::OUTLIER_SHARE_CANDIDATES`), or takes
+    /// `DEFAULT_OUTLIER_SHARE` without one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub outlier_share: Option<f64>,
     /// Mixed with the training seed.
