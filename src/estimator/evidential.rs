@@ -93,6 +93,10 @@ impl Evidential {
             let open = TrackSettings {
                 conflict_threshold: crate::evidence::ConflictLevel::Infinite,
                 selection: SelectionPolicy::LargestSubset,
+                // Each feature alone, as measured: the errors the learned reliabilities read.
+                combine: crate::track::Combine::Selected,
+                rule: crate::evidence::Rule::Dempster,
+                discount: crate::track::Discount::None,
                 ..settings.track.clone()
             };
             let tracker = build_tracker(&frames, None, &[], &open)?;
