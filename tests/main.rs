@@ -21,6 +21,7 @@ mod model;
 mod pipeline;
 mod reference;
 mod reliability;
+mod rules;
 mod scheduler;
 mod sim;
 mod temporal;
