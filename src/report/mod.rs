@@ -34,9 +34,8 @@ pub use records::{
     write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,
     RunSummary, Timings,
 };
-pub use files::{
-    model_file_name, write_run, RunOutput, PRODUCER_FILE, REPORT_FILE, RESULTS_FILE, SCENARIO_FILE,
-};
+pub use seeds::{AcrossSeeds, Claim, Comparison, Finding, Interval, SeedReport, Side, Verdict};
+pub use sweep_plots::{write_sweep_plots, SweepPlots};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};
