@@ -1,8 +1,8 @@
 //! The `evitrack` command line: one room per command group, shared helpers here.
 
 mod data;
-mod feature_report;
 mod dataset_cmd;
+mod feature_report;
 mod merge;
 mod model;
 mod producer;

@@ -250,7 +250,7 @@ fn a_sweeps_report_and_plots_show_intervals_with_seeds() {
         let verdict = if seeds {
             "noise &lt; none: "
         } else {
-            "noise &lt; none: cannot be judged on one seed"
+            "noise &lt; none: untested: one seed"
         };
         assert!(said.contains(verdict), "{said:.200}");
     }
