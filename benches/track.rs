@@ -204,6 +204,52 @@ fn bench(c: &mut Criterion) {
     }
     group.finish();
     bench_scale(c);
+    bench_rules(c, &paper_like);
+}
+
+/// One frame per combination rule (issue 30): the paper-like model (8 features, 400 poses,
+/// Bayesian), every usable feature combined by the rule; `paper` is the selection + Dempster
+/// default, `-a0.9` discounts every feature by 0.9 first. The cautious rule takes at most 20
+/// cells, so it is timed on a 4 × 4 mesh (consonant, discounted) beside Dempster's there.
+fn bench_rules(c: &mut Criterion, feats: &[Feat]) {
+    use evitrack::evidence::Rule;
+    use evitrack::track::{Combine, Discount};
+    let mut group = c.benchmark_group("track_frame_rules");
+    let (tracker, lik) = setup(feats, 20, TrackSettings::default(), &[], 2026);
+    bench_frame(&mut group, BenchmarkId::new("paper", "400"), &tracker, &lik);
+    for rule in Rule::ALL {
+        for (suffix, discount) in [("", Discount::None), ("-a0.9", Discount::Fixed(0.9))] {
+            if rule == Rule::Cautious || (!suffix.is_empty() && rule != Rule::Dempster) {
+                continue;
+            }
+            let settings = TrackSettings {
+                combine: Combine::All,
+                rule,
+                discount,
+                ..TrackSettings::default()
+            };
+            let (tracker, lik) = setup(feats, 20, settings, &[], 2026);
+            let id = BenchmarkId::new(format!("{}{suffix}", rule.name()), "400");
+            bench_frame(&mut group, id, &tracker, &lik);
+        }
+    }
+    for rule in [Rule::Dempster, Rule::Cautious] {
+        let settings = TrackSettings {
+            constructor: Constructor::Consonant,
+            combine: Combine::All,
+            rule,
+            discount: Discount::Fixed(0.9),
+            ..TrackSettings::default()
+        };
+        let (tracker, lik) = setup(feats, 4, settings, &[], 2026);
+        bench_frame(
+            &mut group,
+            BenchmarkId::new(rule.name(), "16"),
+            &tracker,
+            &lik,
+        );
+    }
+    group.finish();
 }
 
 /// 10,000 sample poses × 32 features of 3 states, every policy, threshold ∞ and finite.

@@ -4,9 +4,10 @@
 //! with a real camera can bring one instead. On disk a dataset is a folder holding
 //!
 //! - `manifest.json` — format version, camera geometry, units, seed, scenario and source;
-//! - `poses.csv` — header `file,t,x,y,theta1,theta2`, one row per frame in order: the frame's path
-//!   relative to the folder, its time (s), the end-effector position (mm) and the joint angles
-//!   (rad). The four pose columns may all be left empty when the truth is unknown;
+//! - `poses.csv` — header `file,t,x,y` or `file,t,x,y,theta1,theta2`, one row per frame in order:
+//!   the frame's path relative to the folder, its time (s), the end-effector position (mm) and,
+//!   optionally, the joint angles (rad). `x, y` may be left empty when the truth is unknown, and
+//!   the angles when they are (a real object has none);
 //! - the frames themselves, `frames/NNNNN.png` by default (8-bit grey; colour PNGs are converted).
 //!
 //! Coordinates: positions are in the robot's own frame (mm), the frame of
@@ -15,7 +16,12 @@
 //! down) has its centre at world `x = cx + (i − (W − 1)/2)·s`, `y = cy − (j − (H − 1)/2)·s`
 //! (see [`CameraGeometry`]).
 
+mod check;
 mod files;
+mod init;
+
+pub use check::{check_folder, CheckReport};
+pub use init::{init_folder, png_files, InitOptions};
 
 use std::path::{Component, Path, PathBuf};
 
@@ -74,6 +80,14 @@ pub enum DatasetError {
         /// What is wrong and how to fix it.
         message: String,
     },
+    /// A folder of frames cannot become a dataset as it is (`init_folder`).
+    #[error("{}: {message}", path.display())]
+    Folder {
+        /// The folder or file concerned.
+        path: PathBuf,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
     /// The in-memory dataset is inconsistent and cannot be written.
     #[error("invalid dataset: {0}")]
     Invalid(String),
@@ -84,13 +98,12 @@ impl Truth {
     /// joint angle beyond ±[`MAX_ANGLE_RAD`].
     pub fn check(&self, workspace: Option<&Rect>) -> Result<(), String> {
         check_position([self.x, self.y], workspace)?;
-        if !(self.theta1.abs() <= MAX_ANGLE_RAD && self.theta2.abs() <= MAX_ANGLE_RAD) {
-            return Err(format!(
-                "joint angles ({}, {}) rad must be within ±2π",
-                self.theta1, self.theta2
-            ));
+        match self.angles {
+            Some([a, b]) if !(a.abs() <= MAX_ANGLE_RAD && b.abs() <= MAX_ANGLE_RAD) => {
+                Err(format!("joint angles ({a}, {b}) rad must be within ±2π"))
+            }
+            _ => Ok(()),
         }
-        Ok(())
     }
 }
 
@@ -208,10 +221,10 @@ pub struct Truth {
     pub x: f64,
     /// End-effector y (mm).
     pub y: f64,
-    /// Left motor angle (rad).
-    pub theta1: f64,
-    /// Right motor angle (rad).
-    pub theta2: f64,
+    /// The motor angles `[θ1, θ2]` (rad, left then right) when known: the simulated five-bar
+    /// has them, a real object has none. Nothing downstream needs them (every method estimates
+    /// the position `x, y`); they are kept for checks of the kinematics.
+    pub angles: Option<[f64; 2]>,
 }
 
 /// One frame: image, time, and ground truth if known.

@@ -60,6 +60,7 @@ pub mod evidence;
 pub mod experiment;
 pub mod external;
 pub mod faults;
+pub mod feature_report;
 pub mod features;
 pub(crate) mod gaussian_process;
 pub mod hmm;

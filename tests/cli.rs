@@ -3,7 +3,9 @@
 use std::io::Write;
 use std::process::{Command, Output, Stdio};
 
+mod dataset_cmd;
 mod outputs;
+mod report;
 mod runs;
 mod shards;
 
@@ -427,4 +429,54 @@ fn train_then_track_reports_errors_and_refuses_broken_models() {
     );
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("broken.json"));
+}
+
+#[test]
+fn scenario_prints_every_setting_explained_and_the_text_runs_the_same() {
+    let defaults = evitrack(&["scenario", "--defaults"], "");
+    assert_eq!(defaults.status.code(), Some(0));
+    let text = String::from_utf8(defaults.stdout).unwrap();
+    let builtin = evitrack::scenario::ScenarioSet::builtin_default().unwrap();
+    let parsed = evitrack::scenario::ScenarioSet::parse(&text, "printed").unwrap();
+    assert_eq!(
+        parsed.base.to_toml().unwrap(),
+        builtin.base.to_toml().unwrap()
+    );
+    let lines: Vec<&str> = text.lines().collect();
+    for (i, line) in lines.iter().enumerate().skip(1) {
+        let setting = line.starts_with('[') || line.contains(" = ");
+        if setting && !line.starts_with('#') {
+            assert!(lines[i - 1].starts_with('#'), "no comment above `{line}`");
+        }
+    }
+    assert!(
+        defaults.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&defaults.stderr)
+    );
+
+    let variant = evitrack(&["scenario", "scenarios/paper.toml", "--variant", "c"], "");
+    let set = evitrack::scenario::ScenarioSet::load(std::path::Path::new("scenarios/paper.toml"))
+        .unwrap();
+    let c = set.variants.iter().find(|v| v.name() == "paper-c").unwrap();
+    let printed = String::from_utf8(variant.stdout).unwrap();
+    let again = evitrack::scenario::ScenarioSet::parse(&printed, "printed").unwrap();
+    assert_eq!(again.base.to_toml().unwrap(), c.to_toml().unwrap());
+
+    let unknown = evitrack(&["scenario", "scenarios/paper.toml", "--variant", "zz"], "");
+    assert_eq!(unknown.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("its variants are"));
+
+    // The printed text of a file runs exactly as the file does.
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("small.toml");
+    std::fs::write(&file, small_scenario("small", "")).unwrap();
+    let printed = evitrack(&["scenario", file.to_str().unwrap()], "");
+    let copy = dir.path().join("printed.toml");
+    std::fs::write(&copy, &printed.stdout).unwrap();
+    run_expecting("run", &file, &dir.path().join("a"), 0);
+    run_expecting("run", &copy, &dir.path().join("b"), 0);
+    let results =
+        |side: &str| std::fs::read(dir.path().join(side).join("small/results.json")).unwrap();
+    assert_eq!(results("a"), results("b"));
 }

@@ -23,8 +23,7 @@ fn small_dataset(with_truth: bool) -> Dataset {
             truth: (with_truth || k % 2 == 0).then(|| Truth {
                 x: -9.5 + 0.123_456_789_012_345 * k as f64,
                 y: 38.0 + std::f64::consts::PI * k as f64,
-                theta1: 2.0 + 1e-17 * k as f64,
-                theta2: 0.5 - k as f64 / 7.0,
+                angles: Some([2.0 + 1e-17 * k as f64, 0.5 - k as f64 / 7.0]),
             }),
         })
         .collect::<Vec<_>>();
@@ -187,4 +186,30 @@ fn inconsistent_dataset_is_not_written() {
     d.frames[1].file = "../escape.png".into();
     d.manifest.frame_count = d.frames.len();
     assert!(matches!(d.write(dir.path()), Err(DatasetError::Invalid(_))));
+}
+
+#[test]
+fn poses_without_joint_angles_round_trip_in_four_columns() {
+    let mut d = small_dataset(true);
+    for f in &mut d.frames {
+        if let Some(t) = &mut f.truth {
+            t.angles = None;
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    d.write(dir.path()).unwrap();
+    let text = fs::read_to_string(dir.path().join(POSES_FILE)).unwrap();
+    assert!(text.starts_with("file,t,x,y\n"), "{text}");
+    assert_eq!(Dataset::read(dir.path()).unwrap(), d);
+    // Six columns with the angles left empty read the same.
+    let six: String = text
+        .lines()
+        .enumerate()
+        .map(|(k, l)| match k {
+            0 => "file,t,x,y,theta1,theta2\n".to_string(),
+            _ => format!("{l},,\n"),
+        })
+        .collect();
+    fs::write(dir.path().join(POSES_FILE), six).unwrap();
+    assert_eq!(Dataset::read(dir.path()).unwrap(), d);
 }

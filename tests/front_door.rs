@@ -116,10 +116,7 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         "centre",
     ];
     for method in methods {
-        let model = match method {
-            "evidential" => run_dir.join("model.json"),
-            other => run_dir.join(format!("model-{other}.json")),
-        };
+        let model = run_dir.join(evitrack::report::model_file_name(method));
         let estimates = dir.join(format!("est-{label}-{method}.csv"));
         ok(evitrack(&[
             "track",
@@ -149,9 +146,10 @@ fn run_and_sweep_models_track_to_the_runs_own_estimates() {
         "--out",
         out_text,
     ]));
-    let model: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("door/model.json")).unwrap())
-            .unwrap();
+    let model: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("door/model-evidential.json")).unwrap(),
+    )
+    .unwrap();
     // The model file carries what tracking needs: settings, learned threshold, provenance.
     assert_eq!(model["method"], "evidential");
     assert_eq!(model["track"]["constructor"], "consonant");

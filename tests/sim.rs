@@ -48,18 +48,19 @@ fn settled_end_effector_matches_command_and_forward_kinematics() {
             t.x,
             t.y
         );
-        let fk = fb.forward([t.theta1, t.theta2]).unwrap();
+        let [theta1, theta2] = t.angles.expect("the simulated robot has joint angles");
+        let fk = fb.forward([theta1, theta2]).unwrap();
         let e_fk = (fk[0] - t.x).hypot(fk[1] - t.y);
         assert!(
             e_fk < 1e-3,
             "FK of simulated angles off by {e_fk} mm at ({x}, {y})"
         );
         let ik = fb.inverse(x, y).unwrap();
-        let e_th = (ik[0] - t.theta1).abs().max((ik[1] - t.theta2).abs());
+        let e_th = (ik[0] - theta1).abs().max((ik[1] - theta2).abs());
         assert!(
             e_th < 1e-4,
             "simulated angles {:?} vs IK {ik:?}",
-            [t.theta1, t.theta2]
+            [theta1, theta2]
         );
     }
 }

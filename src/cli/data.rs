@@ -95,8 +95,9 @@ pub struct SimulateArgs {
     #[arg(long)]
     scenario: Option<PathBuf>,
     /// Which of the scenario's motions: `sample` (the frames `run` trains on, after
-    /// `keep_every` and the adaptive samples), `validation`, `calibration` or `test` (`test1`,
-    /// … for later test motions; the clean frames, before the scenario's [[faults]]).
+    /// `keep_every` and the adaptive samples), `validation`, `calibration` or `test0`, `test1`,
+    /// … (the test motions in file order, named as in `frames.csv` and the plots; `test` is
+    /// `test0`; the clean frames, before the scenario's [[faults]]).
     #[arg(long, default_value = "sample", requires = "scenario")]
     part: String,
     /// The sweep variant of the scenario file, by its full name (`paper-c`) or the part after
@@ -138,9 +139,11 @@ pub struct FeaturesArgs {
     /// configuration's. Repeatable.
     #[arg(long = "feature-program", value_name = "FILE.toml")]
     feature_program: Vec<PathBuf>,
-    /// Output CSV file (default: standard output).
+    /// Output CSV file (default: standard output); with --report, a folder.
     #[arg(long)]
     out: Option<PathBuf>,
+    #[command(flatten)]
+    report: super::feature_report::ReportArgs,
 }
 
 fn parse_motion(text: &str) -> Result<Motion> {
@@ -155,7 +158,7 @@ fn parse_motion(text: &str) -> Result<Motion> {
 }
 
 /// The base scenario or the named sweep variant of a scenario file.
-fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenario> {
+pub(crate) fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenario> {
     let set = ScenarioSet::load(path)?;
     let Some(name) = variant else {
         return Ok(set.base);
@@ -173,6 +176,18 @@ fn scenario_variant(path: &Path, variant: Option<&str>) -> Result<CheckedScenari
                 names.join(", ")
             )
         })
+}
+
+/// The index of test motion `testN` (0-based, as `frames.csv` and the plots name it; `test` is
+/// `test0`).
+fn test_index(part: &str) -> Result<usize> {
+    match &part[4..] {
+        "" => Ok(0),
+        digits if digits.bytes().all(|b| b.is_ascii_digit()) => digits
+            .parse()
+            .with_context(|| format!("--part `{part}`: test number too large")),
+        _ => bail!("--part `{part}`: expected test0, test1, … (test is test0)"),
+    }
 }
 
 /// Exactly the dataset a run of the scenario uses for `part`.
@@ -208,15 +223,10 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
             ScenarioPart::Calibration,
         ),
         test if test.starts_with("test") => {
-            let index: usize = match &test[4..] {
-                "" => 0,
-                digits => digits
-                    .parse()
-                    .with_context(|| format!("--part `{test}`: expected test, test1, test2, …"))?,
-            };
+            let index = test_index(test)?;
             let motion = s.tests.get(index).cloned().with_context(|| {
                 format!(
-                    "scenario `{}` has {} test motion(s): use --part test … test{}",
+                    "scenario `{}` has {} test motion(s): use --part test0 … test{}",
                     s.name,
                     s.tests.len(),
                     s.tests.len().saturating_sub(1)
@@ -231,7 +241,9 @@ fn scenario_part(scenario: &CheckedScenario, part: &str) -> Result<Dataset> {
             }
             (motion, ScenarioPart::Test(index))
         }
-        other => bail!("--part `{other}` must be sample, validation, calibration or test[N]"),
+        other => bail!(
+            "--part `{other}` must be sample, validation, calibration or testN (test0, test1, …)"
+        ),
     };
     let seed = seed::for_part(s.seed, part);
     let threads = super::cores();
@@ -362,6 +374,15 @@ pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
         .extend(super::programs::read_programs(&args.feature_program)?);
     let set = config.check()?;
     let rows = extract_with_progress(&set, &dataset, &what)?;
+    if args.report.report {
+        return super::feature_report::report(
+            &args.report,
+            &dataset,
+            &set,
+            &rows,
+            args.out.as_deref(),
+        );
+    }
     let mut csv = csv::Writer::from_writer(Vec::new());
     let with_truth = dataset.frames.iter().all(|f| f.truth.is_some());
     let mut header = vec!["file".to_string(), "t".to_string()];
@@ -378,7 +399,10 @@ pub fn features(args: &FeaturesArgs) -> Result<ExitCode> {
                 .map(|v| v.map(|v| v.to_string()).unwrap_or_default()),
         );
         if let (true, Some(truth)) = (with_truth, frame.truth) {
-            record.extend([truth.x, truth.y, truth.theta1, truth.theta2].map(|v| v.to_string()));
+            record.extend([truth.x, truth.y].map(|v| v.to_string()));
+            // Empty angle cells for a frame without them (a real object has none).
+            let angles = truth.angles.map(|a| a.map(|v| v.to_string()));
+            record.extend(angles.unwrap_or_default());
         }
         csv.write_record(&record)?;
     }

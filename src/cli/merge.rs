@@ -126,6 +126,6 @@ pub fn merge(args: &MergeArgs) -> Result<ExitCode> {
     let summaries: Vec<RunSummary> = runs.into_iter().map(|(_, s)| s).collect();
     ensure_writable(&args.out)?;
     let file = SweepFile::new(summaries, Vec::new(), &comparisons);
-    write_sweep_report(&args.out, "sweep.json", &file)?;
+    write_sweep_report(&args.out, "sweep.json", &file, &[])?;
     finish_sweep(&file.runs, &[], args.check)
 }

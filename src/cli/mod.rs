@@ -1,11 +1,15 @@
 //! The `evitrack` command line: one room per command group, shared helpers here.
 
 mod data;
+mod dataset_cmd;
+mod feature_report;
 mod merge;
 mod model;
 mod producer;
 mod programs;
+mod progress;
 mod runs;
+mod scenario_cmd;
 mod sweep;
 mod tables;
 mod train_settings;
@@ -57,14 +61,20 @@ enum Command {
     Combine(data::CombineArgs),
     /// Simulate a motion and write a dataset folder (PNG frames, poses.csv, manifest.json).
     Simulate(data::SimulateArgs),
+    /// Bring your own frames: `dataset init FOLDER` makes a folder of PNGs a dataset,
+    /// `dataset check FOLDER` reports every problem of one.
+    Dataset(dataset_cmd::DatasetArgs),
     /// Render one frame at a pose (mm, robot frame), for developing features by eye.
     Render(data::RenderArgs),
     /// Extract the features of every frame of a dataset into a CSV (one row per frame, one
     /// column per feature, plus the ground truth when the dataset has it).
     Features(data::FeaturesArgs),
-    /// Train an evidential model on a dataset of the sample trajectory: one HMM per feature,
-    /// its frame of discernment and its refining onto the sample poses.
+    /// Train any registered method (`--method`, default `evidential`) on a dataset of the sample
+    /// trajectory and write its self-contained model file.
     Train(model::TrainArgs),
+    /// Print a scenario as it runs, every setting filled in with a comment above it (without a
+    /// file: the built-in default, `--defaults`).
+    Scenario(scenario_cmd::ScenarioArgs),
     /// Track a dataset with a trained model: per-frame estimates to CSV, error summary when the
     /// dataset has ground truth.
     Track(model::TrackArgs),
@@ -106,9 +116,11 @@ fn dispatch(command: Command) -> Result<ExitCode> {
         Command::Merge(args) => merge::merge(&args),
         Command::Simulate(args) => data::simulate(&args),
         Command::Render(args) => data::render(&args),
+        Command::Dataset(args) => dataset_cmd::dataset(&args),
         Command::Features(args) => data::features(&args),
         Command::Train(args) => model::train(&args),
         Command::Track(args) => model::track(&args),
+        Command::Scenario(args) => scenario_cmd::scenario(&args),
     }
 }
 
@@ -288,11 +300,7 @@ pub(crate) fn load_scenarios(path: Option<&Path>) -> Result<ScenarioSet> {
     }
 }
 
-pub(crate) fn fmt_mm(value: Option<f64>) -> String {
-    value
-        .map(|v| format!("{v:.4}"))
-        .unwrap_or_else(|| "—".into())
-}
+pub(crate) use evitrack::report::tables::fmt_mm;
 
 /// Creates `dir` and proves it writable before any work, so that a run does not compute for
 /// minutes and then find `--out` read-only.

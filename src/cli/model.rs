@@ -204,7 +204,8 @@ pub(super) enum WeightsArg {
 pub struct TrackArgs {
     /// Dataset folder to track.
     dataset: PathBuf,
-    /// Model file written by `train`, `run` or `sweep` (`<out>/<scenario>/model.json`).
+    /// Model file written by `train`, `run` or `sweep` (`<out>/<scenario>/model-<method>.json`,
+    /// e.g. `model-evidential.json`).
     #[arg(long)]
     model: PathBuf,
     /// Output CSV of per-frame estimates (default: standard output).
@@ -450,8 +451,29 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// A missing model file is named, with the new name when it is a run's old `model.json`.
+fn check_model_path(path: &std::path::Path) -> Result<()> {
+    if path.exists() {
+        return Ok(());
+    }
+    let renamed = path.with_file_name(evitrack::report::model_file_name("evidential"));
+    if path.file_name().is_some_and(|n| n == "model.json") && renamed.is_file() {
+        bail!(
+            "{} does not exist: runs and sweeps name the evidential model {} (model-<method>.json \
+             for every method)",
+            path.display(),
+            renamed.display()
+        );
+    }
+    bail!(
+        "{} does not exist: give a model file written by `train`, `run` or `sweep`",
+        path.display()
+    )
+}
+
 pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     ensure_output_writable(args.out.as_deref())?;
+    check_model_path(&args.model)?;
     let loaded = estimator::load(&args.model)
         .with_context(|| format!("loading the model {}", args.model.display()))?;
     let estimator: Box<dyn PoseEstimator> = if args.track.given() {

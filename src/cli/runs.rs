@@ -5,9 +5,9 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 
 use super::producer::Producer;
+use super::progress::StageBars;
 use super::tables::print_tables;
 use super::{ensure_writable, fmt_mm, load_scenarios};
 use evitrack::experiment::{self, Workbench};
@@ -32,70 +32,6 @@ pub struct RunArgs {
     /// `1500MB`, bytes). Default: 3/4 of the smaller of the machine's memory and `ulimit -v`.
     #[arg(long, value_name = "SIZE", value_parser = super::parse_memory_limit)]
     memory_limit: Option<u64>,
-}
-
-/// Progress bars for the stages of runs, one line per variant: the stage (simulating a motion,
-/// extracting its features, fitting a method, tracking with it), its frames, and the variant's
-/// elapsed time. Hidden when stderr is not a terminal (indicatif's stderr target), so logs and
-/// tests see none.
-pub(super) struct StageBars {
-    multi: MultiProgress,
-    bars: Vec<ProgressBar>,
-}
-
-/// What a variant's bar says before its run starts.
-const WAITING: &str = "waiting";
-
-impl StageBars {
-    pub(super) fn new(names: &[String]) -> Self {
-        let multi = MultiProgress::new();
-        let template = "{prefix:>24} {spinner} {msg:>22} [{bar:30}] {pos}/{len} {elapsed}";
-        let style = ProgressStyle::with_template(template)
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> ");
-        let bars = names
-            .iter()
-            .map(|name| {
-                let bar = multi.add(ProgressBar::new(0));
-                bar.set_style(style.clone());
-                bar.set_prefix(name.clone());
-                bar.set_message(WAITING);
-                bar
-            })
-            .collect();
-        Self { multi, bars }
-    }
-
-    pub(super) fn update(&self, variant: usize, stage: &str, done: usize, total: usize) {
-        if let Some(bar) = self.bars.get(variant) {
-            let message = bar.message();
-            if message != stage {
-                // A fit reports no frames: the spinner and the clock show it is working.
-                if message == WAITING && !bar.is_hidden() {
-                    bar.reset_elapsed();
-                    bar.enable_steady_tick(std::time::Duration::from_millis(120));
-                }
-                bar.set_message(stage.to_string());
-            }
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        }
-    }
-
-    /// Stops a variant's bar once its run is over (its line stays, saying so).
-    pub(super) fn done(&self, variant: usize, failed: bool) {
-        if let Some(bar) = self.bars.get(variant) {
-            bar.disable_steady_tick();
-            bar.finish_with_message(if failed { "failed" } else { "done" });
-        }
-    }
-
-    pub(super) fn finish(&self) {
-        for bar in &self.bars {
-            bar.finish_and_clear();
-        }
-        let _ = self.multi.clear();
-    }
 }
 
 pub fn run(args: &RunArgs) -> Result<ExitCode> {

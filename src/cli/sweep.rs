@@ -9,7 +9,7 @@ use clap::Args;
 
 use super::ensure_writable;
 use super::producer::Producer;
-use super::runs::StageBars;
+use super::progress::StageBars;
 use super::tables::{evidential_of, print_tables, seed_tables, states_text};
 use evitrack::experiment::{self, Workbench};
 use evitrack::report::{self, finite, write_run, RunSummary};
@@ -118,6 +118,19 @@ fn earlier_run(dir: &Path, run: &CheckedScenario, producer: &Producer) -> Earlie
     match producer.differs_from(earlier.as_ref()) {
         None => Earlier::Kept(Box::new(summary)),
         Some(why) => Earlier::Stale(why),
+    }
+}
+
+/// How many runs a sweep has, how many ran now and how many it kept from an earlier sweep.
+fn runs_text(total: usize, ran: usize, kept: usize) -> String {
+    let runs = |n: usize| format!("{n} run{}", if n == 1 { "" } else { "s" });
+    match (ran, kept) {
+        (_, 0) => format!("{}, all run now,", runs(total)),
+        (0, _) => format!("{}, all kept from the earlier sweep,", runs(total)),
+        _ => format!(
+            "{} ({ran} run now, {kept} kept from the earlier sweep)",
+            runs(total)
+        ),
     }
 }
 
@@ -320,13 +333,15 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
     let state = state.into_inner().unwrap_or_else(|e| e.into_inner());
     let file = sweep_file(&state);
     let mut failures: Vec<String> = state.failures.into_iter().flatten().collect();
-    if let Err(error) = write_sweep_report(&args.out, &file_name, &file) {
+    let settings = (variants.iter())
+        .map(|v| Ok((v.name().to_string(), v.to_toml()?)))
+        .collect::<Result<Vec<_>>>()?;
+    if let Err(error) = write_sweep_report(&args.out, &file_name, &file, &settings) {
         failures.push(format!("{error:#}"));
     }
     eprintln!(
-        "{} runs ({} run now) in {elapsed:.1} s on {jobs} jobs; per-run outputs in {}/<variant>/{}",
-        file.runs.len(),
-        todo.len(),
+        "{} in {elapsed:.1} s on {jobs} jobs; per-run outputs in {}/<variant>/{}",
+        runs_text(labels.len(), todo.len(), kept),
         args.out.display(),
         if seeded { "seed-<seed>/" } else { "" }
     );
@@ -338,8 +353,14 @@ pub fn sweep(args: &SweepArgs) -> Result<ExitCode> {
     finish_sweep(&checked, &failures, args.check)
 }
 
-/// Prints the table, writes JSON, CSV and plots of a set of run summaries.
-pub(super) fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) -> Result<()> {
+/// Prints the table, writes JSON, CSV, plots and `report.html` of a set of run summaries;
+/// `settings` are the variants' scenarios as TOML by name (for the plot against a setting).
+pub(super) fn write_sweep_report(
+    out: &Path,
+    json_name: &str,
+    file: &SweepFile,
+    settings: &[(String, String)],
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let all_runs = file.runs.as_slice();
     // Tables and plots show each variant's first run; with several seeds per variant, the
@@ -354,8 +375,6 @@ pub(super) fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) 
     if first.len() < all_runs.len() {
         println!("{}", seed_tables(&file.across_seeds));
     }
-    let summaries: Vec<RunSummary> = first.iter().map(|&s| s.clone()).collect();
-    let summaries = summaries.as_slice();
     file.write(&out.join(json_name))?;
     let csv_path = out.join(json_name.replace(".json", ".csv"));
     let mut csv = csv::Writer::from_writer(Vec::new());
@@ -465,72 +484,33 @@ pub(super) fn write_sweep_report(out: &Path, json_name: &str, file: &SweepFile) 
     let bytes = csv.into_inner().map_err(|e| anyhow::anyhow!("{e}"))?;
     evitrack::atomic::write(&csv_path, &bytes)
         .with_context(|| format!("writing {}", csv_path.display()))?;
-    if summaries.is_empty() {
-        return Ok(());
-    }
-    // One series per method, in the order the methods first appear.
-    let mut names: Vec<&str> = Vec::new();
-    for m in summaries.iter().flat_map(|s| &s.methods) {
-        if !names.contains(&m.method.as_str()) {
-            names.push(&m.method);
-        }
-    }
-    let mean_of = |s: &RunSummary, name: &str| s.method(name).and_then(|m| m.error).map(|e| e.mean);
-    let series: Vec<report::BarSeries> = names
-        .iter()
-        .map(|&name| report::BarSeries {
-            name: name.to_string(),
-            values: summaries.iter().map(|s| mean_of(s, name)).collect(),
-        })
-        .collect();
-    let labels: Vec<String> = summaries.iter().map(|s| s.scenario.clone()).collect();
-    // The paper's figures are the evidential tracker's.
-    let paper: Vec<Option<f64>> = summaries
-        .iter()
-        .map(|s| s.paper_error.filter(|_| s.evidential.is_some()))
-        .collect();
-    let has_paper = paper.iter().any(Option::is_some);
-    let any_error = series.iter().any(|s| s.values.iter().any(Option::is_some));
-    if any_error {
-        report::plot_errors_by_variant(
-            &out.join(json_name.replace(".json", "-errors.png")),
-            "mean estimation error per variant and method",
-            &labels,
-            &series,
-            has_paper.then_some(paper.as_slice()),
-        )?;
-    }
-    // Where the variants differ in their evidential state counts, error against the total count.
-    let totals: Vec<Option<usize>> = summaries
-        .iter()
-        .map(|s| s.evidential.as_ref().map(|e| e.states.iter().sum()))
-        .collect();
-    let distinct: std::collections::HashSet<_> = totals.iter().flatten().collect();
-    if distinct.len() > 1 {
-        let lines: Vec<report::PlotSeries> = series
-            .iter()
-            .map(|line| {
-                let mut points: Vec<(f64, f64)> = totals
-                    .iter()
-                    .zip(&line.values)
-                    .filter_map(|(n, e)| Some((n.as_ref().copied()? as f64, (*e)?)))
-                    .collect();
-                points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                report::PlotSeries {
-                    name: line.name.clone(),
-                    points,
-                }
-            })
-            .filter(|line| !line.points.is_empty())
-            .collect();
-        report::plot_series(
-            &out.join(json_name.replace(".json", "-states.png")),
-            "mean error against the evidential model's total number of states",
-            "Σ nᵢ (states over all features)",
-            "mean error (mm)",
-            &lines,
-        )?;
-    }
+    let prefix = json_name.trim_end_matches(".json");
+    let plots = report::write_sweep_plots(
+        out,
+        prefix,
+        &report::SweepPlots {
+            first: &first,
+            across: &file.across_seeds,
+            settings,
+        },
+    )?;
+    let page = report::sweep_page(
+        &report::SweepPage {
+            first: &first,
+            runs: all_runs.len(),
+            across: &file.across_seeds,
+            stated: file.comparisons.len(),
+            pending: &file.pending,
+        },
+        &plots,
+    )?;
+    // `report.html` beside `sweep.json`; a shard's page is named after its file.
+    let html = match prefix {
+        "sweep" => out.join(report::REPORT_FILE),
+        shard => out.join(format!("{shard}-report.html")),
+    };
+    evitrack::atomic::write(&html, page.as_bytes())
+        .with_context(|| format!("writing {}", html.display()))?;
     Ok(())
 }
 

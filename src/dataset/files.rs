@@ -12,7 +12,7 @@ use super::{
 const HEADER: [&str; 6] = ["file", "t", "x", "y", "theta1", "theta2"];
 
 /// Wraps an I/O error with the path it concerns.
-fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
+pub(super) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> DatasetError + '_ {
     move |source| DatasetError::Io {
         path: path.to_path_buf(),
         source,
@@ -26,7 +26,6 @@ impl Dataset {
         let dir = dir.as_ref();
         self.validate()?;
         fs::create_dir_all(dir).map_err(io(dir))?;
-        let mut table = String::from("file,t,x,y,theta1,theta2\n");
         for f in &self.frames {
             let path = dir.join(&f.file);
             if let Some(parent) = path.parent() {
@@ -40,15 +39,13 @@ impl Dataset {
                     source: std::io::Error::other(e),
                 })?;
             crate::atomic::write(&path, &png).map_err(io(&path))?;
-            // `{}` on f64 prints the shortest string that parses back to the same value.
-            match f.truth {
-                Some(t) => table.push_str(&format!(
-                    "{},{},{},{},{},{}\n",
-                    f.file, f.t, t.x, t.y, t.theta1, t.theta2
-                )),
-                None => table.push_str(&format!("{},{},,,,\n", f.file, f.t)),
-            }
         }
+        let rows: Vec<(&str, f64, Option<Truth>)> = self
+            .frames
+            .iter()
+            .map(|f| (f.file.as_str(), f.t, f.truth))
+            .collect();
+        let table = pose_table_text(&rows);
         let poses = dir.join(POSES_FILE);
         crate::atomic::write(&poses, table.as_bytes()).map_err(io(&poses))?;
         let manifest = dir.join(MANIFEST_FILE);
@@ -163,14 +160,60 @@ fn read_manifest(path: &Path) -> Result<Manifest, DatasetError> {
     Ok(m)
 }
 
-struct Row {
-    line: u64,
-    file: String,
-    t: f64,
-    truth: Option<Truth>,
+/// The text of `poses.csv` for rows (file, time, truth); the angle columns only when some row
+/// has them (a real object has none).
+pub(super) fn pose_table_text(rows: &[(&str, f64, Option<Truth>)]) -> String {
+    let with_angles = rows.iter().any(|r| r.2.is_some_and(|t| t.angles.is_some()));
+    let columns = if with_angles {
+        &HEADER[..]
+    } else {
+        &HEADER[..4]
+    };
+    let mut table = columns.join(",") + "\n";
+    for &(file, t, truth) in rows {
+        // `{}` on f64 prints the shortest string that parses back to the same value.
+        table.push_str(&format!("{file},{t}"));
+        match truth {
+            Some(p) => table.push_str(&format!(",{},{}", p.x, p.y)),
+            None => table.push_str(",,"),
+        }
+        if with_angles {
+            match truth.and_then(|p| p.angles) {
+                Some([a, b]) => table.push_str(&format!(",{a},{b}")),
+                None => table.push_str(",,"),
+            }
+        }
+        table.push('\n');
+    }
+    table
+}
+
+pub(super) struct Row {
+    pub(super) line: u64,
+    pub(super) file: String,
+    pub(super) t: f64,
+    pub(super) truth: Option<Truth>,
+}
+
+/// The rows of a pose table, and each bad row's error (a bad row is left out of `rows`).
+pub(super) struct PoseTable {
+    pub(super) rows: Vec<Row>,
+    pub(super) errors: Vec<DatasetError>,
+    /// Data rows in the file, good and bad.
+    pub(super) count: usize,
 }
 
 fn read_poses(path: &Path) -> Result<Vec<Row>, DatasetError> {
+    let mut table = read_pose_table(path)?;
+    match table.errors.is_empty() {
+        true => Ok(table.rows),
+        false => Err(table.errors.remove(0)),
+    }
+}
+
+/// Reads `poses.csv` to the end, collecting every bad row's error instead of stopping at the
+/// first (`dataset check` reports them all); an unreadable file or header is an error at once.
+pub(super) fn read_pose_table(path: &Path) -> Result<PoseTable, DatasetError> {
     let file = fs::File::open(path).map_err(io(path))?;
     let mut rdr = csv::ReaderBuilder::new()
         .has_headers(true)
@@ -186,83 +229,106 @@ fn read_poses(path: &Path) -> Result<Vec<Row>, DatasetError> {
         .headers()
         .map_err(|e| row_err(1, format!("unreadable header: {e}")))?
         .clone();
-    if header.iter().collect::<Vec<_>>() != HEADER {
+    let found: Vec<&str> = header.iter().collect();
+    let columns: &[&str] = if found == HEADER {
+        &HEADER
+    } else if found == HEADER[..4] {
+        &HEADER[..4]
+    } else {
         return Err(row_err(
             1,
             format!(
-                "header must be `{}`, found `{}`",
+                "header must be `{}` or `{}` (joint angles are optional), found `{}`",
+                HEADER[..4].join(","),
                 HEADER.join(","),
-                header.iter().collect::<Vec<_>>().join(",")
+                found.join(",")
             ),
         ));
-    }
-    let mut rows = Vec::new();
+    };
+    let mut table = PoseTable {
+        rows: Vec::new(),
+        errors: Vec::new(),
+        count: 0,
+    };
     let mut seen = std::collections::HashSet::new();
     let mut last_t = f64::NEG_INFINITY;
     for rec in rdr.records() {
-        let rec = rec.map_err(|e| {
-            let line = e.position().map(|p| p.line()).unwrap_or(0);
-            row_err(line, format!("unreadable row: {e}"))
-        })?;
+        table.count += 1;
+        let rec = match rec {
+            Ok(rec) => rec,
+            Err(e) => {
+                let line = e.position().map(|p| p.line()).unwrap_or(0);
+                table
+                    .errors
+                    .push(row_err(line, format!("unreadable row: {e}")));
+                continue;
+            }
+        };
         let line = rec.position().map(|p| p.line()).unwrap_or(0);
-        if rec.len() != HEADER.len() {
-            return Err(row_err(
-                line,
-                format!(
-                    "expected {} fields ({}), found {}",
-                    HEADER.len(),
-                    HEADER.join(","),
-                    rec.len()
-                ),
-            ));
+        match parse_row(&rec, columns, &mut seen, &mut last_t) {
+            Ok(row) => table.rows.push(Row { line, ..row }),
+            Err(message) => table.errors.push(row_err(line, message)),
         }
-        let file = rec[0].to_string();
-        safe_relative(&file).map_err(|e| row_err(line, e))?;
-        if !seen.insert(file.clone()) {
-            return Err(row_err(line, format!("frame {file:?} listed twice")));
-        }
-        let num = |k: usize| -> Result<f64, DatasetError> {
-            let v: f64 = rec[k].parse().map_err(|_| {
-                row_err(
-                    line,
-                    format!("{} = {:?} is not a number", HEADER[k], &rec[k]),
-                )
-            })?;
-            if !v.is_finite() {
-                return Err(row_err(line, format!("{} = {v} must be finite", HEADER[k])));
-            }
-            Ok(v)
-        };
-        let t = num(1)?;
-        if t < last_t {
-            return Err(row_err(
-                line,
-                format!("time {t} s goes backwards (previous row {last_t} s); sort the rows"),
-            ));
-        }
-        last_t = t;
-        let empty = (2..6).filter(|&k| rec[k].is_empty()).count();
-        let truth = match empty {
-            4 => None,
-            0 => Some(Truth {
-                x: num(2)?,
-                y: num(3)?,
-                theta1: num(4)?,
-                theta2: num(5)?,
-            }),
-            _ => {
-                return Err(row_err(
-                    line,
-                    "x, y, theta1, theta2 must be all filled or all empty".into(),
-                ))
-            }
-        };
-        rows.push(Row {
-            line,
-            file,
-            t,
-            truth,
-        });
     }
-    Ok(rows)
+    Ok(table)
+}
+
+/// One data row of `poses.csv` (`line` left 0 for the caller), or what is wrong with it.
+fn parse_row(
+    rec: &csv::StringRecord,
+    columns: &[&str],
+    seen: &mut std::collections::HashSet<String>,
+    last_t: &mut f64,
+) -> Result<Row, String> {
+    if rec.len() != columns.len() {
+        return Err(format!(
+            "expected {} fields ({}), found {}",
+            columns.len(),
+            columns.join(","),
+            rec.len()
+        ));
+    }
+    let file = rec[0].to_string();
+    safe_relative(&file)?;
+    if !seen.insert(file.clone()) {
+        return Err(format!("frame {file:?} listed twice"));
+    }
+    let num = |k: usize| -> Result<f64, String> {
+        let v: f64 = rec[k]
+            .parse()
+            .map_err(|_| format!("{} = {:?} is not a number", columns[k], &rec[k]))?;
+        if !v.is_finite() {
+            return Err(format!("{} = {v} must be finite", columns[k]));
+        }
+        Ok(v)
+    };
+    let t = num(1)?;
+    if t < *last_t {
+        return Err(format!(
+            "time {t} s goes backwards (previous row {last_t} s); sort the rows"
+        ));
+    }
+    *last_t = t;
+    let filled = |range: std::ops::Range<usize>| range.filter(|&k| !rec[k].is_empty()).count();
+    let angles = match filled(4..columns.len()) {
+        0 => None,
+        2 => Some([num(4)?, num(5)?]),
+        _ => return Err("theta1 and theta2 must both be filled or both be empty".into()),
+    };
+    let truth = match filled(2..4) {
+        0 if angles.is_none() => None,
+        0 => return Err("joint angles without x, y: fill x and y, or empty the angles".into()),
+        2 => Some(Truth {
+            x: num(2)?,
+            y: num(3)?,
+            angles,
+        }),
+        _ => return Err("x and y must both be filled or both be empty".into()),
+    };
+    Ok(Row {
+        line: 0,
+        file,
+        t,
+        truth,
+    })
 }

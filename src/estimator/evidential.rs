@@ -93,6 +93,10 @@ impl Evidential {
             let open = TrackSettings {
                 conflict_threshold: crate::evidence::ConflictLevel::Infinite,
                 selection: SelectionPolicy::LargestSubset,
+                // Each feature alone, as measured: the errors the learned reliabilities read.
+                combine: crate::track::Combine::Selected,
+                rule: crate::evidence::Rule::Dempster,
+                discount: crate::track::Discount::None,
                 ..settings.track.clone()
             };
             let tracker = build_tracker(&frames, None, &[], &open)?;
@@ -400,12 +404,35 @@ pub(crate) fn check_discrete_frames(
             names.len()
         ));
     }
-    settings
+    let ranges = settings
         .evidential
         .model
         .state_ranges(names.len())
         .map_err(|e| format!("[model]: {e} (the features are {})", names.join(", ")))?;
-    Ok(())
+    check_rule_cost(&settings.evidential.track, &ranges)
+}
+
+/// Dubois and Prade's rule and PCR6 enumerate every tuple of focal sets: refused before a run
+/// when the largest state counts could give more than [`crate::track::MAX_RULE_TUPLES`].
+fn check_rule_cost(track: &TrackSettings, ranges: &[(usize, usize)]) -> Result<(), String> {
+    use crate::evidence::Rule;
+    if !matches!(track.rule, Rule::DuboisPrade | Rule::Pcr6) {
+        return Ok(());
+    }
+    let max = crate::track::MAX_RULE_TUPLES;
+    let fits = ranges.iter().try_fold(1u64, |t, &(_, hi)| {
+        t.checked_mul(hi as u64 + 1).filter(|&t| t <= max)
+    });
+    match fits {
+        Some(_) => Ok(()),
+        None => Err(format!(
+            "[track]: the evidential trackers (`evidential`, `evidential_temporal`) cannot take \
+             rule `{}` here: it enumerates every tuple of focal sets, and {} features with these \
+             state counts give more than {max} a frame; use fewer states or another rule",
+            track.rule.name(),
+            ranges.len()
+        )),
+    }
 }
 
 #[cfg(test)]

@@ -293,6 +293,7 @@ pub fn run(
         timings,
         scenario_toml: scenario.to_toml()?,
         producer: None,
+        workspace: Some(sim.geometry.workspace),
     })
 }
 
@@ -337,7 +338,7 @@ type TestMotion = (
 
 /// The features of the images a fault changed (`images`, frames `at` of `data`), the external
 /// programs' included: they run on those frames as a dataset of their own.
-fn corrupted_features(
+pub(crate) fn corrupted_features(
     set: &crate::features::FeatureSet,
     data: &crate::dataset::Dataset,
     at: &[usize],

@@ -1,7 +1,7 @@
 //! Features from programs in any language (`[[features.external]]`): the frames of a motion are
 //! written as a dataset folder without ground truth, each program runs once on it and writes one
-//! CSV row per frame, checked ([`table`]), and its output is cached by its and the frames'
-//! content ([`cache`]). The values follow the built-in ones in every row, in declared order; an
+//! CSV row per frame, checked (`table`), and its output is cached by its and the frames'
+//! content (`cache`). The values follow the built-in ones in every row, in declared order; an
 //! empty cell is a missing value, as a built-in feature's `None`.
 //!
 //! This room sits between `dataset` (whose writer it uses) and the harness (`experiment`, the

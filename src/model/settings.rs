@@ -76,7 +76,7 @@ pub enum Tuning {
         /// Upper bounds.
         max_states: StateCounts,
     },
-    /// The count within bounds (inclusive) with the lowest score from a [`StateCountTuner`]
+    /// The count within bounds (inclusive) with the lowest score from a `StateCountTuner`
     /// (the tracker's estimation error on a validation motion); ties go to fewer states.
     Validation {
         /// Lower bounds.

@@ -19,6 +19,35 @@ pub fn detection_auc(records: &[FrameRecord]) -> Option<f64> {
     auc(scored)
 }
 
+/// The ROC curve of the records' detection scores against "corrupted" (scores as in
+/// [`detection_auc`]): (false positive rate, true positive rate) from the strictest threshold to
+/// the loosest, tied scores taken together; `None` where [`detection_auc`] is `None`.
+pub fn roc_curve(records: &[FrameRecord]) -> Option<Vec<(f64, f64)>> {
+    detection_auc(records)?;
+    let mut scored: Vec<(f64, bool)> = (records.iter())
+        .map(|r| (r.detection_score.unwrap_or(f64::INFINITY), r.corrupted()))
+        .collect();
+    let positives = scored.iter().filter(|s| s.1).count() as f64;
+    let negatives = scored.len() as f64 - positives;
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut curve = vec![(0.0, 0.0)];
+    let (mut tp, mut fp) = (0usize, 0usize);
+    for (i, (score, positive)) in scored.iter().enumerate() {
+        if *positive {
+            tp += 1;
+        } else {
+            fp += 1;
+        }
+        let tie_continues = scored
+            .get(i + 1)
+            .is_some_and(|next| next.0.total_cmp(score).is_eq());
+        if !tie_continues {
+            curve.push((fp as f64 / negatives, tp as f64 / positives));
+        }
+    }
+    Some(curve)
+}
+
 /// The AUC of `(score, positive)` pairs.
 fn auc(mut scored: Vec<(f64, bool)>) -> Option<f64> {
     let positives = scored.iter().filter(|s| s.1).count();
@@ -70,6 +99,23 @@ mod tests {
             dropped: false,
         };
         FrameRecord::new("m", "test0", 0, 0.0, None, &estimate, &["f".into()]).with_faults(faults)
+    }
+
+    #[test]
+    fn roc_runs_from_corner_to_corner_and_its_area_is_the_auc() {
+        let records: Vec<FrameRecord> = [(5.0, true), (4.0, false), (3.0, true), (1.0, false)]
+            .iter()
+            .map(|&(s, c)| record(Some(s), c))
+            .collect();
+        let curve = roc_curve(&records).unwrap();
+        assert_eq!(curve.first(), Some(&(0.0, 0.0)));
+        assert_eq!(curve.last(), Some(&(1.0, 1.0)));
+        let area: f64 = (curve.windows(2))
+            .map(|w| (w[1].0 - w[0].0) * 0.5 * (w[0].1 + w[1].1))
+            .sum();
+        assert!((area - detection_auc(&records).unwrap()).abs() < 1e-12);
+        assert_eq!(area, 0.75);
+        assert!(roc_curve(&records[..1]).is_none());
     }
 
     #[test]

@@ -3,12 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{
-    plot_series, plot_trajectory, write_frames_csv, FrameRecord, PlotSeries, ReportError,
-    CURVE_POINTS,
-};
+use super::run_plots::write_run_plots;
+use super::{write_frames_csv, FrameRecord, ReportError};
 use super::{RunSummary, Timings};
 use crate::estimator::PoseEstimator;
+use crate::planar::Rect;
 
 fn write_error(
     path: &Path,
@@ -41,7 +40,12 @@ pub struct RunOutput {
     /// every feature program), written as `producer.json`; a sweep resumes a run only when it
     /// matches.
     pub producer: Option<String>,
+    /// The workspace the test motions ran in (outlined in the track plots).
+    pub workspace: Option<Rect>,
 }
+
+/// A run's (and a sweep's) page with its tables, findings and plots.
+pub const REPORT_FILE: &str = "report.html";
 
 /// The file of a run folder whose presence says the run finished: written last.
 pub const RESULTS_FILE: &str = "results.json";
@@ -52,15 +56,21 @@ pub const SCENARIO_FILE: &str = "scenario.toml";
 /// What produced a run folder's results ([`RunOutput::producer`]).
 pub const PRODUCER_FILE: &str = "producer.json";
 
+/// The name of a run's model file of `method`: `model-<method>.json` for every method (until
+/// issue 31 the evidential tracker's was `model.json`; such files still load, by any name).
+pub fn model_file_name(method: &str) -> String {
+    format!("model-{method}.json")
+}
+
 /// Writes a run's outputs into `dir`, each file atomically: `scenario.toml` (the scenario as run),
 /// `frames.csv` (one row per frame and method), `samples.csv` (the sample poses and the adaptive
 /// round that added each), `producer.json` (what produced it, when the caller says), one self-contained model file per method that `evitrack track` reads
-/// (`model.json` for the evidential tracker, `model-<method>.json` for the others), one
-/// `track-<motion>.png` per test motion and method (true against estimated positions, like the
-/// paper's Figure 2; the other methods' plots end in `-<method>`), `timings.json` when `timings`
-/// is set (wall times differ between runs, everything else is byte-identical for a scenario and
-/// seed), `risk-coverage.png` (each method's risk–coverage curve over its mean error), and last
-/// `results.json`, so that a folder with it holds a finished run. Returns the
+/// ([`model_file_name`]: `model-<method>.json`, the evidential tracker's too), one
+/// `timings.json` when `timings` is set (wall times differ between runs, everything else is
+/// byte-identical for a scenario and seed), the plots (`errors-<motion>.png`, one
+/// `track-<motion>.png` per test motion and method — the other methods' end in `-<method>` —,
+/// `risk-coverage.png`, `roc.png` with faults), `report.html` (tables,
+/// expectations, plots embedded), and last `results.json`, so that a folder with it holds a finished run. Returns the
 /// files written.
 pub fn write_run(
     dir: &Path,
@@ -96,10 +106,7 @@ pub fn write_run(
     put("samples.csv", samples.as_bytes())?;
 
     for estimator in &output.estimators {
-        let name = match estimator.method() {
-            "evidential" => "model.json".to_string(),
-            other => format!("model-{other}.json"),
-        };
+        let name = model_file_name(estimator.method());
         let text = estimator
             .to_json()
             .map_err(|e| write_error(&dir.join(&name), e))?;
@@ -112,58 +119,10 @@ pub fn write_run(
         put("timings.json", (json + "\n").as_bytes())?;
     }
 
-    for summary in &output.summary.methods {
-        let method = summary.method.as_str();
-        let suffix = match method {
-            "evidential" => String::new(),
-            other => format!("-{other}"),
-        };
-        for (label, stats) in &summary.per_motion {
-            let records: Vec<&FrameRecord> = output
-                .records
-                .iter()
-                .filter(|r| &r.motion == label && r.method == method)
-                .collect();
-            let truth: Vec<[f64; 2]> = records.iter().filter_map(|r| r.truth).collect();
-            let estimate: Vec<Option<[f64; 2]>> = records.iter().map(|r| r.estimate).collect();
-            let file = dir.join(format!("track-{}{suffix}.png", label.replace(':', "-")));
-            let title = match stats {
-                Some(s) => format!(
-                    "{} — {label}, {method}: mean error {:.3} mm",
-                    output.summary.scenario, s.mean
-                ),
-                None => format!(
-                    "{} — {label}, {method}: no estimate",
-                    output.summary.scenario
-                ),
-            };
-            plot_trajectory(&file, &title, &truth, &estimate, Some(&output.samples))?;
-            written.push(file);
-        }
-    }
-    // Curves divided by the method's mean error: methods whose errors differ a hundredfold
-    // share one axis, and below 1 means its surest frames are its better ones.
-    let curves: Vec<PlotSeries> = (output.summary.methods.iter())
-        .filter_map(|m| {
-            let rc = &m.confidence.as_ref()?.all;
-            let full = *rc.curve.last()?;
-            (full > 0.0).then(|| PlotSeries {
-                name: m.method.clone(),
-                points: (rc.curve.iter().enumerate())
-                    .map(|(i, r)| (100.0 * (i + 1) as f64 / CURVE_POINTS as f64, r / full))
-                    .collect(),
-            })
-        })
-        .collect();
-    if !curves.is_empty() {
-        let file = dir.join("risk-coverage.png");
-        let title = format!(
-            "{} — mean error of the surest frames, over the method's mean",
-            output.summary.scenario
-        );
-        plot_series(&file, &title, "coverage (%)", "risk / mean error", &curves)?;
-        written.push(file);
-    }
+    let plots = write_run_plots(dir, output)?;
+    let html = super::pages::run_page(&output.summary, &plots)?;
+    written.extend(plots.into_iter().map(|w| w.path));
+    put_file(dir, REPORT_FILE, html.as_bytes(), &mut written)?;
     super::check_json_numbers(RESULTS_FILE, &output.summary)?;
     let json = serde_json::to_string_pretty(&output.summary)
         .map_err(|e| write_error(&dir.join(RESULTS_FILE), e))?;

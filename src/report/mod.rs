@@ -1,28 +1,41 @@
 //! Reporting: error statistics, per-frame records and run summaries, the files of a run,
-//! plain-text tables and PNG plots.
+//! plain-text tables, PNG plots and `report.html`.
 
 mod auc;
 mod confidence;
 mod files;
 pub mod finite;
 mod finite_json;
+pub mod html;
 mod limit;
-mod plot;
+mod pages;
+pub(crate) mod plot;
 mod records;
+mod run_plots;
 mod seeds;
+mod sweep_plots;
 mod table;
+pub mod tables;
 
-pub use auc::detection_auc;
+pub use auc::{detection_auc, roc_curve};
 pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
-pub use files::{write_run, RunOutput, PRODUCER_FILE, RESULTS_FILE, SCENARIO_FILE};
+pub use files::{
+    model_file_name, write_run, RunOutput, PRODUCER_FILE, REPORT_FILE, RESULTS_FILE, SCENARIO_FILE,
+};
 pub use finite_json::check_json_numbers;
 pub use limit::{efficiency, LimitNoise, LimitSummary};
-pub use plot::{plot_errors_by_variant, plot_series, plot_trajectory, BarSeries, PlotSeries};
+pub use pages::{run_page, sweep_page, SweepPage};
+pub use plot::{
+    method_colour, plot_errors_by_variant, plot_errors_over_time, plot_series, plot_trajectory,
+    BarSeries, PlotSeries, TrackPlot, FAULT_MARK, FAULT_SHADE, INTERVAL, LOST_SHADE, PAPER,
+    WORKSPACE,
+};
 pub use records::{
     write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,
     RunSummary, Timings,
 };
-pub use seeds::{AcrossSeeds, Comparison, Finding, Interval, SeedReport, Side, Verdict};
+pub use seeds::{AcrossSeeds, Claim, Comparison, Finding, Interval, SeedReport, Side, Verdict};
+pub use sweep_plots::{write_sweep_plots, SweepPlots};
 pub use table::Table;
 
 use serde::{Deserialize, Serialize};

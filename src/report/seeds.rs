@@ -132,6 +132,80 @@ pub struct Finding {
     pub verdict: Verdict,
 }
 
+/// What a finding's name claims of left − right, read from the comparison sign between its two
+/// sides: `b < a` (lower), `c > a` (higher), `d = a` (no measurable difference).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Claim {
+    /// The left side's error is lower.
+    Lower,
+    /// The left side's error is higher.
+    Higher,
+    /// No measurable difference.
+    Same,
+}
+
+impl Claim {
+    /// The claim in `name`: exactly one of ` < `, ` > `, ` = ` in it; `None` otherwise (the
+    /// pairs of methods a sweep adds, `knn − gp`, claim nothing).
+    pub fn of(name: &str) -> Option<Self> {
+        let found: Vec<Claim> = [
+            (" < ", Claim::Lower),
+            (" > ", Claim::Higher),
+            (" = ", Claim::Same),
+        ]
+        .into_iter()
+        .filter(|(sign, _)| name.matches(sign).count() == 1)
+        .map(|(_, claim)| claim)
+        .collect();
+        match found.as_slice() {
+            [one] => Some(*one),
+            _ => None,
+        }
+    }
+
+    fn verdict(self) -> Verdict {
+        match self {
+            Claim::Lower => Verdict::LeftLower,
+            Claim::Higher => Verdict::LeftHigher,
+            Claim::Same => Verdict::NoMeasurableEffect,
+        }
+    }
+}
+
+impl Finding {
+    /// Whether the claim in the finding's name holds: `None` without a claim, with one seed, or
+    /// when a claimed direction is not shown (the interval contains zero).
+    pub fn holds(&self) -> Option<bool> {
+        let claim = Claim::of(&self.comparison.name)?;
+        match (claim, self.verdict) {
+            (_, Verdict::TooFewSeeds) => None,
+            (Claim::Lower | Claim::Higher, Verdict::NoMeasurableEffect) => None,
+            (claim, verdict) => Some(claim.verdict() == verdict),
+        }
+    }
+
+    /// In words, with the numbers: `holds: left − right = −1.2300 ± 0.1000 mm, below 0`,
+    /// `does not hold: …` or `not shown: …`; without a claim what the interval shows.
+    pub fn statement(&self) -> String {
+        let d = &self.difference;
+        let shows = match self.verdict {
+            Verdict::LeftLower => "below 0: left lower",
+            Verdict::LeftHigher => "above 0: left higher",
+            Verdict::NoMeasurableEffect => "contains 0: no measurable difference",
+            Verdict::TooFewSeeds => {
+                return "untested: one seed, no interval (run --seeds N)".into()
+            }
+        };
+        let numbers = format!("left − right = {} mm, {shows}", d.text(4));
+        match (self.holds(), Claim::of(&self.comparison.name)) {
+            (Some(true), _) => format!("holds: {numbers}"),
+            (Some(false), _) => format!("does not hold: {numbers}"),
+            (None, Some(_)) => format!("not shown: {numbers}"),
+            (None, None) => numbers,
+        }
+    }
+}
+
 /// Every variant and comparison across seeds.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct SeedReport {
@@ -241,6 +315,15 @@ mod tests {
     use super::*;
     use crate::scenario::Expectations;
 
+    #[test]
+    fn a_claim_is_read_from_the_sign_between_its_sides() {
+        assert_eq!(Claim::of("b < a"), Some(Claim::Lower));
+        assert_eq!(Claim::of("c > a"), Some(Claim::Higher));
+        assert_eq!(Claim::of("d = a"), Some(Claim::Same));
+        assert_eq!(Claim::of("evidential − knn"), None);
+        assert_eq!(Claim::of("a < b < c"), None);
+    }
+
     fn run(scenario: &str, seed: u64, errors: &[(&str, f64)]) -> RunSummary {
         RunSummary {
             scenario: scenario.into(),
@@ -318,6 +401,28 @@ mod tests {
             (2.0, Verdict::LeftHigher)
         );
         assert_eq!(report.findings.len(), 3);
+        // In words: b < a holds; c vs a claims nothing; a claim the interval refutes fails.
+        assert_eq!(b.holds(), Some(true));
+        assert_eq!(
+            b.statement(),
+            "holds: left − right = -1.0000 ± 0.0000 mm, below 0: left lower"
+        );
+        assert_eq!(c.holds(), None);
+        assert!(
+            c.statement().starts_with("left − right = 0.0000"),
+            "{}",
+            c.statement()
+        );
+        let mut refuted = b.clone();
+        refuted.comparison.name = "b > a".into();
+        assert_eq!(refuted.holds(), Some(false));
+        assert!(refuted.statement().starts_with("does not hold: "));
+        refuted.comparison.name = "b = a".into();
+        assert_eq!(refuted.holds(), Some(false));
+        let mut unshown = c.clone();
+        unshown.comparison.name = "c < a".into();
+        assert_eq!(unshown.holds(), None);
+        assert!(unshown.statement().starts_with("not shown: "));
         let a = &report.variants[0];
         assert_eq!((a.side.scenario.as_str(), a.seeds.len()), ("p-a", 4));
         assert_eq!(a.mean_error.mean, 6.0);

@@ -539,8 +539,12 @@ pub(crate) fn seed_too_large(seed: u64) -> String {
     )
 }
 
+mod annotate;
+mod comments;
 mod expect;
 mod sweep;
+
+pub use annotate::{annotate, comment_for};
 
 pub use expect::{Expectations, MeasuredFigures, MethodExpectations, DEFAULT_TOLERANCE};
 pub use sweep::{

@@ -248,8 +248,7 @@ impl Robot {
         Truth {
             x,
             y,
-            theta1: r1 + PI,
-            theta2: r2,
+            angles: Some([r1 + PI, r2]),
         }
     }
 
@@ -397,7 +396,8 @@ mod tests {
             "{t:?}"
         );
         let th = fb.inverse(3.0, 40.0).unwrap();
-        assert!((t.theta1 - th[0]).abs() < 1e-6 && (t.theta2 - th[1]).abs() < 1e-6);
+        let [a, b] = t.angles.unwrap();
+        assert!((a - th[0]).abs() < 1e-6 && (b - th[1]).abs() < 1e-6);
     }
 
     #[test]

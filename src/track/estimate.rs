@@ -80,6 +80,9 @@ impl Tracker {
         group: GroupMask,
         usable: &[Option<Usable>],
     ) -> Option<([f64; 2], Vec<f64>, Uncertainty)> {
+        if !self.plain() {
+            return self.fused_estimate(group, usable);
+        }
         let pl = self.plausibility(group, usable)?;
         let weights = match self.settings.estimator {
             PoseRule::Pignistic => {

@@ -9,6 +9,7 @@ mod cell_levels;
 mod cells;
 mod conflict;
 mod estimate;
+mod fusion;
 mod group_search;
 mod past;
 mod settings;
@@ -20,9 +21,12 @@ mod tuples;
 
 #[cfg(test)]
 pub(crate) use group_search::select_group_exhaustive;
+pub use fusion::MAX_RULE_TUPLES;
 pub use group_search::{members, select_group, GroupLevels, GroupMask, Selection};
 pub use past::{group_beside_past, past_outweighs, PastFrame};
-pub use settings::{CheckedTrackSettings, PoseRule, SelectionPolicy, TrackSettings};
+pub use settings::{
+    CheckedTrackSettings, Combine, Discount, PoseRule, SelectionPolicy, TrackSettings,
+};
 pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};
 pub use tracker_model::{GroupError, TrackedFeature, TrackerModel, MAX_FEATURES};

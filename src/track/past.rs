@@ -13,7 +13,7 @@ use std::collections::HashMap;
 
 use super::cell_levels::CellLevels;
 use super::group_search::{members, select_group, GroupLevels, GroupMask};
-use super::settings::SelectionPolicy;
+use super::settings::{Combine, SelectionPolicy};
 use super::tracker::{FrameEstimate, Tracker, Usable};
 use super::TrackError;
 use crate::evidence::dempster_all;
@@ -252,17 +252,23 @@ impl Tracker {
             cell_max,
             memo: HashMap::new(),
         };
-        let (features, level) = group_beside_past(
-            &mut levels,
-            usable_mask,
-            f,
-            self.settings.selection,
-            self.settings.conflict_threshold,
-        );
-        let own = alone.group.iter().fold(0, |m: GroupMask, &i| m | 1 << i);
-        if !past_outweighs(Some((own, alone.flags.fallback)), features, past_weight) {
-            return Ok(frame_alone);
-        }
+        let (features, level) = if self.settings.combine == Combine::All {
+            // Every usable feature and the past, whatever their conflict.
+            (usable_mask, levels.group_level(usable_mask | 1 << f))
+        } else {
+            let (features, level) = group_beside_past(
+                &mut levels,
+                usable_mask,
+                f,
+                self.settings.selection,
+                self.settings.conflict_threshold,
+            );
+            let own = alone.group.iter().fold(0, |m: GroupMask, &i| m | 1 << i);
+            if !past_outweighs(Some((own, alone.flags.fallback)), features, past_weight) {
+                return Ok(frame_alone);
+            }
+            (features, level)
+        };
         let Some((estimate, plausibility, uncertainty)) =
             self.estimate_with_past(features, &usable, carried)
         else {
@@ -298,7 +304,7 @@ impl Tracker {
         let mut weights = if features == 0 {
             carried.to_vec()
         } else {
-            let mut pl = self.plausibility(features, usable)?;
+            let mut pl = self.fused_plausibility(features, usable)?;
             let max = pl.iter().copied().fold(0.0f64, f64::max);
             for (p, &c) in pl.iter_mut().zip(carried) {
                 *p = *p / max * c;

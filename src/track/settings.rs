@@ -2,8 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use super::fusion::{Combine, Discount};
 use super::TrackError;
-use crate::evidence::{ConflictLevel, Constructor};
+use crate::evidence::{ConflictLevel, Constructor, Rule};
 
 /// How the group of features to combine is chosen among the compatible groups (§4.2).
 ///
@@ -119,6 +120,20 @@ pub struct TrackSettings {
     pub estimator: PoseRule,
     /// Share of the relative plausibility the reported uncertainty radius must hold, in (0, 1].
     pub uncertainty_mass: f64,
+    /// Which features are combined: the selected group (the paper's) or every usable feature.
+    #[serde(skip_serializing_if = "Combine::is_default")]
+    pub combine: Combine,
+    /// The combination rule (Dempster's, the paper's, by default).
+    #[serde(skip_serializing_if = "is_dempster")]
+    pub rule: Rule,
+    /// Shafer's discounting of each feature before the rule.
+    #[serde(skip_serializing_if = "Discount::is_none")]
+    pub discount: Discount,
+}
+
+/// Default fields are left out of files, so files of the defaults read as before.
+fn is_dempster(rule: &Rule) -> bool {
+    *rule == Rule::Dempster
 }
 
 impl Default for TrackSettings {
@@ -129,6 +144,9 @@ impl Default for TrackSettings {
             selection: SelectionPolicy::LargestSubset,
             estimator: PoseRule::WeightedMean,
             uncertainty_mass: 0.9,
+            combine: Combine::Selected,
+            rule: Rule::Dempster,
+            discount: Discount::None,
         }
     }
 }
@@ -172,7 +190,51 @@ impl TrackSettings {
                 reason: format!("{} is not in (0, 1]", self.uncertainty_mass),
             });
         }
+        self.check_fusion()?;
         Ok(CheckedTrackSettings(self))
+    }
+
+    /// The rule, discounting and combined group fit together.
+    fn check_fusion(&self) -> Result<(), TrackError> {
+        let bad = |field, reason: &str| {
+            Err(TrackError::InvalidSetting {
+                field,
+                reason: reason.into(),
+            })
+        };
+        if let Discount::Fixed(alpha) = self.discount {
+            if !(0.0..=1.0).contains(&alpha) {
+                return bad(
+                    "discount",
+                    &format!("{alpha} is not a reliability: use a number in [0, 1], \"learned\" or \"none\""),
+                );
+            }
+        }
+        if self.combine == Combine::All && self.selection != SelectionPolicy::LargestSubset {
+            return bad(
+                "selection",
+                "`combine = \"all\"` combines every usable feature: it takes no selection policy",
+            );
+        }
+        if self.rule != Rule::Dempster
+            && matches!(self.selection, SelectionPolicy::Splitting { .. })
+        {
+            return bad(
+                "rule",
+                "the splitting policy weighs its alternatives by Dempster's rule: use `rule = \"dempster\"` with it",
+            );
+        }
+        if self.rule == Rule::Cautious
+            && self.constructor == Constructor::Bayesian
+            && self.discount == Discount::None
+        {
+            return bad(
+                "rule",
+                "the cautious rule takes non-dogmatic functions, and Bayesian measurements are \
+                 dogmatic: discount them (`discount = \"learned\"` or a number below 1)",
+            );
+        }
+        Ok(())
     }
 }
 
@@ -192,6 +254,9 @@ mod tests {
             estimator: PoseRule::Map,
             constructor: Constructor::Consonant,
             uncertainty_mass: 0.5,
+            combine: Combine::All,
+            rule: Rule::Murphy,
+            discount: Discount::Fixed(0.25),
         };
         let text = toml::to_string(&t).unwrap();
         assert_eq!(toml::from_str::<TrackSettings>(&text).unwrap(), t);

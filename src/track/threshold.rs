@@ -21,12 +21,12 @@ pub enum ThresholdRule {
     Quantile(f64),
     /// This factor (≥ 1) times the largest finite level: the clean validation frames all keep
     /// their features, and the factor covers the higher levels of longer, unseen clean motions
-    /// ([`DEFAULT_MAX_FACTOR`]). The default.
+    /// (`DEFAULT_MAX_FACTOR`). The default.
     ValidationMax(f64),
 }
 
 /// The default rule's factor over the largest clean validation level. On held-out clean motions
-/// (README, "Faults": 10 validation paths, 500 test frames each) the paper's tracker's largest
+/// (docs/results.md, "Faults": 10 validation paths, 500 test frames each) the paper's tracker's largest
 /// level reached 1.82× the validation motion's with 24 states, so 2 keeps every such frame
 /// whole; a larger factor lets one stuck feature into the group more often.
 pub const DEFAULT_MAX_FACTOR: f64 = 2.0;

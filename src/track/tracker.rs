@@ -182,6 +182,8 @@ pub struct Tracker {
     pub(super) to_cells: Vec<Refining>,
     /// `co[i][j][a]` for i < j: the states of feature j that occur together with state a of i.
     pub(super) co: Vec<Vec<Vec<Subset>>>,
+    /// Each feature's reliability (1 without discounting).
+    pub(super) alpha: Vec<f64>,
 }
 
 impl Tracker {
@@ -197,6 +199,7 @@ impl Tracker {
             to_cells,
             co,
         } = Cells::new(&model)?;
+        let alpha = super::fusion::reliabilities(&model, settings.get(), cell_size.len())?;
         Ok(Tracker {
             model,
             settings: settings.get().clone(),
@@ -204,6 +207,7 @@ impl Tracker {
             cell_size,
             to_cells,
             co,
+            alpha,
         })
     }
 

@@ -8,6 +8,7 @@ use std::collections::HashMap;
 
 use super::estimate::Weighed;
 use super::group_search::{lex, GroupMask, Selection};
+use super::settings::Combine;
 use super::tracker::{Alternative, FrameEstimate, FrameFlags, Tracker};
 use super::TrackError;
 
@@ -75,7 +76,16 @@ impl Tracker {
             chosen,
             alternatives,
             fallback,
-        } = self.select(&usable, usable_mask);
+        } = if self.settings.combine == Combine::All {
+            let level = self.level(usable_mask, &usable, &mut HashMap::new(), f64::INFINITY);
+            Selection {
+                chosen: Some((level, usable_mask)),
+                alternatives: Vec::new(),
+                fallback: false,
+            }
+        } else {
+            self.select(&usable, usable_mask)
+        };
         flags.fallback = fallback;
         let Some((level, group)) = chosen else {
             flags.no_usable_feature = true;

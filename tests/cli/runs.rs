@@ -32,7 +32,7 @@ fn run_writes_results_table_model_and_plot() {
     for file in [
         "results.json",
         "frames.csv",
-        "model.json",
+        "model-evidential.json",
         "track-test0-circle.png",
     ] {
         assert!(out_dir.join("small").join(file).is_file(), "{file} missing");
@@ -259,7 +259,32 @@ fn simulate_a_scenario_part_gives_the_dataset_run_uses() {
         "",
     );
     assert_eq!(out.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("1 test motion(s)"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("1 test motion(s): use --part test0 … test0"),
+        "{stderr}"
+    );
+    // One spelling, as frames.csv names the motions: `test0` is `test` (its alias).
+    let zero = dir.path().join("zero");
+    let args = [
+        "simulate",
+        "--scenario",
+        scenario_path.to_str().unwrap(),
+        "--part",
+        "test0",
+    ];
+    let out = evitrack(
+        &[&args[..], &["--out", zero.to_str().unwrap()]].concat(),
+        "",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(evitrack::dataset::Dataset::read(&zero).unwrap(), written);
+    let out = evitrack(&[&args[..4], &["test-1", "--out", "unused"]].concat(), "");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("expected test0, test1, …"));
 }
 
 #[test]
@@ -312,10 +337,12 @@ fn sweeps_over_seeds_give_intervals_and_paired_findings_whatever_the_job_count()
             file,
             frames,
             String::from_utf8_lossy(&run.stdout).into_owned(),
+            String::from_utf8_lossy(&run.stderr).into_owned(),
         )
     };
-    let (one, frames_one, table) = sweep("1");
-    let (two, frames_two, _) = sweep("2");
+    let (one, frames_one, table, _) = sweep("1");
+    let (two, frames_two, _, progress) = sweep("2");
+    assert_progress_is_counted_and_bounded(&progress, 6);
     assert_eq!(
         one["across_seeds"], two["across_seeds"],
         "the job count changes nothing"
@@ -330,8 +357,45 @@ fn sweeps_over_seeds_give_intervals_and_paired_findings_whatever_the_job_count()
         table.contains("n3 < n2") && table.contains(" ± "),
         "{table}"
     );
+    // The finding says in words whether its claim holds, with the numbers.
+    let line = table.lines().find(|l| l.contains("n3 < n2")).unwrap();
+    assert!(
+        ["holds: ", "does not hold: ", "not shown: "]
+            .iter()
+            .any(|words| line.contains(&format!("{words}left − right = ")))
+            && line.contains(" mm, "),
+        "{line}"
+    );
     let variant = &one["across_seeds"]["variants"][0];
     assert_eq!(variant["seeds"], serde_json::json!([1, 2, 3]));
+}
+
+/// A sweep's stderr through a pipe: one line per finished run counting them right, `runs` in
+/// all and run now, a bounded size, and no counter past its total.
+fn assert_progress_is_counted_and_bounded(stderr: &str, runs: usize) {
+    for k in 1..=runs {
+        assert!(
+            stderr.contains(&format!("[{k}/{runs} runs] ")),
+            "{k}: {stderr}"
+        );
+    }
+    assert!(
+        stderr.contains(&format!("{runs} runs, all run now, in ")),
+        "{stderr}"
+    );
+    assert!(
+        stderr.len() < 300 * runs + 1000,
+        "{} bytes: {stderr}",
+        stderr.len()
+    );
+    for word in stderr.split_whitespace() {
+        let counter = word.trim_matches(|c: char| !c.is_ascii_digit() && c != '/');
+        if let Some((done, total)) = counter.split_once('/') {
+            if let (Ok(done), Ok(total)) = (done.parse::<u64>(), total.parse::<u64>()) {
+                assert!(done <= total, "{word} in {stderr}");
+            }
+        }
+    }
 }
 
 #[test]

@@ -139,7 +139,7 @@ impl Continuous {
         Ok(Self::assemble(file, surrogate))
     }
 
-    /// Reads a model file written from [`PoseEstimator::to_json`].
+    /// Reads a model file written from [`PoseEstimator::to_json`](crate::estimator::PoseEstimator::to_json).
     ///
     /// # Errors
     /// [`EstimatorError::Io`] when it cannot be read; [`EstimatorError::File`] naming the path

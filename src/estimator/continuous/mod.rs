@@ -40,7 +40,7 @@ pub use surrogate::SurrogateHyperparameters;
 
 /// The default threshold's factor over the largest validation level. Its noise scales are fitted
 /// on the same validation frames, so those levels run low: held-out clean motions reached 2.4×
-/// their largest (README, "Faults"), against 1.8× for the paper's tracker, so 3 leaves a margin.
+/// their largest (docs/results.md, "Faults"), against 1.8× for the paper's tracker, so 3 leaves a margin.
 pub const CONTINUOUS_MAX_FACTOR: f64 = 3.0;
 
 /// Largest number of features the continuous tracker takes: groups are 64-bit masks (over time,
@@ -74,7 +74,7 @@ pub struct ContinuousSettings {
     pub conflict_threshold: ConflictLevel,
     /// Learn the threshold on the validation motion (§4.3); ignored without one.
     pub learn_threshold: bool,
-    /// How it is learned (default: [`CONTINUOUS_MAX_FACTOR`] × the largest validation level;
+    /// How it is learned (default: `CONTINUOUS_MAX_FACTOR` × the largest validation level;
     /// the 0.99 quantile left 10 of 200 clean frames without a feature).
     pub threshold_rule: ThresholdRule,
     /// Share of poses the plausibility region should cover, in (0, 1): the region's level is

@@ -23,7 +23,7 @@ pub struct TemporalSettings {
     /// The fastest the end effector moves (mm/s): the reach of one frame interval is
     /// `max_speed` × Δt. Default 80: twice the fastest test motion (a 40 mm/s circle; the rig
     /// follows 43 mm/s within micrometres), because the carried belief is sharper than the
-    /// estimate's error and a tight reach makes the tracker lag (README, "Tracking over time").
+    /// estimate's error and a tight reach makes the tracker lag (docs/results.md, "Tracking over time").
     pub max_speed: f64,
     /// Reliability α ∈ [0, 1] of the carried belief; `None` learns it on the validation motion
     /// (the candidate with the lowest mean error, the largest among ties,
@@ -45,7 +45,7 @@ pub struct TemporalSettings {
     #[serde(skip_serializing_if = "is_true")]
     pub learn_velocity: bool,
     /// Spread σ (mm) of the velocity prediction's consonant belief on the refined sample poses
-    /// ([`refine`]); `None`: half the sample poses' typical spacing, widened by
+    /// (`refine`); `None`: half the sample poses' typical spacing, widened by
     /// `evidential_temporal` to the RMS of the line's last five misses.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub velocity_spread: Option<f64>,

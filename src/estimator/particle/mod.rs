@@ -42,17 +42,17 @@ use crate::range::within;
 #[serde(deny_unknown_fields, default)]
 pub struct ParticleSettings {
     /// Number of particles. 2,000 by default: on `scenarios/time.toml` and a held-out motion
-    /// more gave no lower error, fewer lost the pose on some seeds (README, "Tracking over
+    /// more gave no lower error, fewer lost the pose on some seeds (docs/results.md, "Tracking over
     /// time").
     pub particles: usize,
     /// σ (mm/s) of each particle's Gaussian step per axis (the step is σ·Δt); `None` learns it
-    /// on the validation motion ([`learn::MOTION_NOISE_CANDIDATES`]), or takes
-    /// [`DEFAULT_MOTION_NOISE`] without one.
+    /// on the validation motion (`learn::MOTION_NOISE_CANDIDATES`), or takes
+    /// `DEFAULT_MOTION_NOISE` without one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub motion_noise: Option<f64>,
     /// Share ε of each feature's likelihood that is uniform over its range; `None` learns it
-    /// on the validation motion ([`learn::OUTLIER_SHARE_CANDIDATES`]), or takes
-    /// [`DEFAULT_OUTLIER_SHARE`] without one.
+    /// on the validation motion (`learn::OUTLIER_SHARE_CANDIDATES`), or takes
+    /// `DEFAULT_OUTLIER_SHARE` without one.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub outlier_share: Option<f64>,
     /// Mixed with the training seed.
@@ -61,7 +61,7 @@ pub struct ParticleSettings {
     /// frame; the others move to a uniform point within the reach `temporal.max_speed` × Δt.
     /// Half by default: σ is learned on a clean validation motion, and the filter has no
     /// conflict check to keep occluded frames out of the line, so the reach's share is what
-    /// finds a pose that left the line (README, "Tracking over time").
+    /// finds a pose that left the line (docs/results.md, "Tracking over time").
     pub velocity_share: f64,
 }
 

@@ -1,0 +1,63 @@
+//! Fusion rules (issue 30): a subset of `scenarios/rules.toml` meets its bands in CI (the whole
+//! file, with n24, takes minutes: `evitrack sweep scenarios/rules.toml --check`).
+
+use crate::run_variants;
+
+#[test]
+fn a_subset_of_the_rules_sweep_meets_its_expectations() {
+    let names = [
+        "e-clean-paper",
+        "e-clean-yager",
+        "e-clean-pcr6",
+        "e-stuck-paper",
+        "e-stuck-murphy",
+        "e-stuck-dempster-learned",
+        "e-glare-dubois_prade",
+        "e-salt-pepper-disjunctive",
+    ];
+    let runs = run_variants("rules.toml", Some(&names));
+    assert_eq!(runs.len(), names.len());
+    for (name, output) in &runs {
+        let missed = output.summary.regressions();
+        assert!(missed.is_empty(), "{name}: {missed:#?}");
+    }
+}
+
+/// Loads a scenario whose `[track]` ends with `track`; the error's text.
+fn scenario_error(track: &str) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("s.toml");
+    let text = format!(
+        "name = \"s\"\nestimators = [\"evidential\"]\n[sample]\nmotion = {{ kind = \"mesh\", spacing = 1.0 }}\n\
+         [[tests]]\nkind = \"lissajous\"\nfreq_x = 0.3\nfreq_y = 0.2\nduration = 1.0\nfps = 10.0\n\
+         [model]\nstates = 24\n[features.barycentre]\nenabled = true\n[track]\n{track}\n"
+    );
+    std::fs::write(&path, text).unwrap();
+    match evitrack::scenario::ScenarioSet::load(&path) {
+        Ok(_) => String::new(),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn the_scenario_check_names_the_valid_rules_and_the_method_that_cannot_take_one() {
+    let unknown = scenario_error("rule = \"dempstr\"");
+    for name in [
+        "dempster",
+        "yager",
+        "dubois_prade",
+        "pcr6",
+        "cautious",
+        "murphy",
+    ] {
+        assert!(unknown.contains(name), "{unknown}");
+    }
+    let costly = scenario_error("combine = \"all\"\nrule = \"pcr6\"");
+    assert!(
+        costly.contains("evidential") && costly.contains("pcr6"),
+        "{costly}"
+    );
+    assert!(scenario_error("combine = \"all\"\nrule = \"murphy\"").is_empty());
+    let dogmatic = scenario_error("rule = \"cautious\"");
+    assert!(dogmatic.contains("dogmatic"), "{dogmatic}");
+}
