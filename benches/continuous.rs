@@ -7,8 +7,8 @@
 //! stuck 0.6 off (inside their ranges, so only the group levels exclude them). Target (64
 //! features, 4 stuck): median ≤ 10 ms.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use evitrack::estimator::test_maps::{feature_row, workspace_mesh, workspace_points};
-use evitrack::estimator::{Continuous, ContinuousSettings, Labelled, PoseEstimator, TrainingSet};
+use evitrack::estimator::test_maps::{feature_row, fitted_continuous, workspace_points};
+use evitrack::estimator::{Continuous, PoseEstimator};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
@@ -16,33 +16,7 @@ use std::hint::black_box;
 const NOISE: f64 = 0.002;
 
 fn fitted(features: usize, per_side: usize, learn: bool) -> Continuous {
-    let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let poses = workspace_mesh(per_side);
-    let rows: Vec<_> = poses
-        .iter()
-        .map(|&q| feature_row(features, q, NOISE, &mut rng))
-        .collect();
-    let valid_poses = workspace_points(100, &mut rng);
-    let valid_rows: Vec<_> = (valid_poses.iter())
-        .map(|&q| feature_row(features, q, NOISE, &mut rng))
-        .collect();
-    let names: Vec<String> = (0..features).map(|i| format!("f{i}")).collect();
-    let mut data = TrainingSet::new(
-        &names,
-        Labelled {
-            poses: &poses,
-            rows: &rows,
-        },
-    );
-    data.validation = Some(Labelled {
-        poses: &valid_poses,
-        rows: &valid_rows,
-    });
-    let settings = ContinuousSettings {
-        learn_threshold: learn,
-        ..ContinuousSettings::default()
-    };
-    Continuous::fit(&settings, &data).expect("fits")
+    fitted_continuous(features, per_side, 100, NOISE, learn, 1)
 }
 
 /// A bench case: name, features, and (feature, offset) of its faulty values.

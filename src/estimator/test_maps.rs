@@ -61,3 +61,43 @@ pub fn workspace_points(count: usize, rng: &mut impl Rng) -> Vec<[f64; 2]> {
         .map(|_| [rng.random_range(-9.5..=9.5), rng.random_range(38.0..=57.0)])
         .collect()
 }
+
+/// The continuous tracker fitted on `features` test maps over a `per_side`² mesh, with a
+/// validation set of `validation` random poses (threshold learned from it when
+/// `learn_threshold`), every value measured with `noise`, all drawn from `seed`.
+pub fn fitted_continuous(
+    features: usize,
+    per_side: usize,
+    validation: usize,
+    noise: f64,
+    learn_threshold: bool,
+    seed: u64,
+) -> super::Continuous {
+    use rand::SeedableRng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let poses = workspace_mesh(per_side);
+    let rows: Vec<_> = (poses.iter())
+        .map(|&q| feature_row(features, q, noise, &mut rng))
+        .collect();
+    let valid_poses = workspace_points(validation, &mut rng);
+    let valid_rows: Vec<_> = (valid_poses.iter())
+        .map(|&q| feature_row(features, q, noise, &mut rng))
+        .collect();
+    let names: Vec<String> = (0..features).map(|i| format!("f{i}")).collect();
+    let mut data = super::TrainingSet::new(
+        &names,
+        super::Labelled {
+            poses: &poses,
+            rows: &rows,
+        },
+    );
+    data.validation = Some(super::Labelled {
+        poses: &valid_poses,
+        rows: &valid_rows,
+    });
+    let settings = super::ContinuousSettings {
+        learn_threshold,
+        ..super::ContinuousSettings::default()
+    };
+    super::Continuous::fit(&settings, &data).expect("the test maps fit")
+}

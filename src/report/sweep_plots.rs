@@ -160,28 +160,14 @@ fn state_lines(sweep: &SweepPlots<'_>, names: &[&str]) -> Option<Vec<PlotSeries>
             continue;
         }
         for &method in names {
-            let mut points: Vec<(f64, f64, Option<f64>)> = (runs.iter())
+            let points: Vec<(f64, f64, Option<f64>)> = (runs.iter())
                 .filter_map(|(s, n)| {
                     let (mean, half) = sweep.error(s, method);
                     Some((*n, mean?, half))
                 })
                 .collect();
-            points.sort_by(|a, b| a.0.total_cmp(&b.0));
-            if points.is_empty() {
-                continue;
-            }
-            let name = if sets.len() > 1 {
-                format!("{method} (features {})", k + 1)
-            } else {
-                method.to_string()
-            };
-            lines.push(PlotSeries {
-                name,
-                method: method.to_string(),
-                points: points.iter().map(|p| (p.0, p.1)).collect(),
-                half_widths: points.iter().map(|p| p.2).collect(),
-                colour: None,
-            });
+            let label = (sets.len() > 1).then(|| format!("features {}", k + 1));
+            lines.extend(method_line(method, label, points));
         }
     }
     (!lines.is_empty()).then_some(lines)
@@ -281,32 +267,38 @@ fn setting_lines(sweep: &SweepPlots<'_>, names: &[&str]) -> Option<(String, Vec<
     let mut lines = Vec::new();
     for (g, members) in groups.iter().enumerate() {
         for &method in names {
-            let mut points: Vec<(f64, f64, Option<f64>)> = (members.iter())
+            let points: Vec<(f64, f64, Option<f64>)> = (members.iter())
                 .filter_map(|&i| {
                     let (run, leaves) = &variants[i];
                     let (mean, half) = sweep.error(run, method);
                     Some((number(leaves.get(&key))?, mean?, half))
                 })
                 .collect();
-            points.sort_by(|a, b| a.0.total_cmp(&b.0));
-            if points.is_empty() {
-                continue;
-            }
-            let name = if groups.len() > 1 {
-                format!("{method} (set {})", g + 1)
-            } else {
-                method.to_string()
-            };
-            lines.push(PlotSeries {
-                name,
-                method: method.to_string(),
-                points: points.iter().map(|p| (p.0, p.1)).collect(),
-                half_widths: points.iter().map(|p| p.2).collect(),
-                colour: None,
-            });
+            let label = (groups.len() > 1).then(|| format!("set {}", g + 1));
+            lines.extend(method_line(method, label, points));
         }
     }
     (!lines.is_empty()).then_some((key, lines))
+}
+
+/// One method's line through `points` (x, mean error, interval half-width), sorted by x and
+/// labelled `method (label)`; none without points.
+fn method_line(
+    method: &str,
+    label: Option<String>,
+    mut points: Vec<(f64, f64, Option<f64>)>,
+) -> Option<PlotSeries> {
+    if points.is_empty() {
+        return None;
+    }
+    points.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Some(PlotSeries {
+        name: label.map_or_else(|| method.to_string(), |l| format!("{method} ({l})")),
+        method: method.to_string(),
+        points: points.iter().map(|p| (p.0, p.1)).collect(),
+        half_widths: points.iter().map(|p| p.2).collect(),
+        colour: None,
+    })
 }
 
 #[cfg(test)]

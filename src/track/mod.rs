@@ -19,9 +19,9 @@ mod tracker_model;
 mod tracking;
 mod tuples;
 
+pub use fusion::MAX_RULE_TUPLES;
 #[cfg(test)]
 pub(crate) use group_search::select_group_exhaustive;
-pub use fusion::MAX_RULE_TUPLES;
 pub use group_search::{members, select_group, GroupLevels, GroupMask, Selection};
 pub use past::{group_beside_past, past_outweighs, PastFrame};
 pub use settings::{

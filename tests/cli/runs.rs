@@ -510,7 +510,7 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     within(filter("fast"), 0.3221, "filter, fast");
     for (name, measured) in [
         ("particle_filter", 3.567),
-        ("continuous_temporal", 4.613),
+        ("continuous_temporal", 4.693),
         ("evidential_temporal", 2.597),
     ] {
         within(struck_mean("occlusion", name), measured, name);
@@ -519,7 +519,7 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     assert!(filter("clean") * 10.0 < mean("clean", "evidential_temporal"));
     assert!(filter("fast") < mean("fast", "evidential_temporal"));
     assert!(mean("clean", "continuous_temporal") < filter("clean"));
-    // The continuous tracker over time: 9.631 → 4.613 mm on struck frames (2.09×), 1.18× or
+    // The continuous tracker over time: 9.603 → 4.693 mm on struck frames (2.05×), 1.12× or
     // more on every seed with 50 mm/s; the same estimates as per frame on clean frames and on
     // the fast circle.
     let ratio =
@@ -528,7 +528,7 @@ fn the_time_scenario_meets_its_expectations_and_the_readme_reading() {
     for seed in 1..=5 {
         let r = struck("occlusion-v50", seed, "continuous")
             / struck("occlusion-v50", seed, "continuous_temporal");
-        assert!(r >= 1.14, "continuous, occlusion-v50 seed {seed}: {r}");
+        assert!(r >= 1.09, "continuous, occlusion-v50 seed {seed}: {r}");
     }
     for variant in ["clean", "fast", "fast-v50"] {
         let r = mean(variant, "continuous_temporal") / mean(variant, "continuous");

@@ -195,8 +195,8 @@ impl<'a> Frame<'a> {
             return *fit;
         }
         let start = match self.grid_level(group, f64::INFINITY).point {
-            Some(point) => point,
-            None => self.best_sample(group).0,
+            Some(point) if point.iter().all(|v| v.is_finite()) => point,
+            _ => self.best_sample(group).0,
         };
         let fit = self.levenberg_marquardt(group, start);
         self.fits.insert(group, fit);

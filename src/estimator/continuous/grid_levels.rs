@@ -315,6 +315,12 @@ impl Frame<'_> {
         for (&n, s) in kept.nodes.iter().zip(&kept.sums) {
             if s[6] <= best {
                 let (m, step) = cell_minimum(s, half);
+                // Overflowing sums (a feature read at 1e300) give NaN: that cell holds nothing.
+                let m = if m.is_nan() || !step.iter().all(|d| d.is_finite()) {
+                    f64::INFINITY
+                } else {
+                    m
+                };
                 if m < found.0 {
                     found = (m, Some((n as usize, step)));
                 }

@@ -3,7 +3,9 @@
 
 use super::super::frame::Frame;
 use super::super::{Continuous, ContinuousSettings};
-use crate::estimator::test_maps::{feature_row, feature_value, workspace_mesh, workspace_points};
+use crate::estimator::test_maps::{
+    feature_row, feature_value, fitted_continuous, workspace_mesh, workspace_points,
+};
 use crate::estimator::{Labelled, PoseEstimator, TrainingSet};
 use crate::evidence::ConflictLevel;
 use crate::planar::distance;
@@ -15,32 +17,7 @@ const NOISE: f64 = 0.002;
 
 /// The tracker on `features` test maps over a mesh of `per_side`² samples, threshold learned.
 fn fitted(features: usize, per_side: usize) -> Continuous {
-    let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let poses = workspace_mesh(per_side);
-    let rows: Vec<_> = (poses.iter())
-        .map(|&q| feature_row(features, q, NOISE, &mut rng))
-        .collect();
-    let valid_poses = workspace_points(100, &mut rng);
-    let valid_rows: Vec<_> = (valid_poses.iter())
-        .map(|&q| feature_row(features, q, NOISE, &mut rng))
-        .collect();
-    let names: Vec<String> = (0..features).map(|i| format!("f{i}")).collect();
-    let mut data = TrainingSet::new(
-        &names,
-        Labelled {
-            poses: &poses,
-            rows: &rows,
-        },
-    );
-    data.validation = Some(Labelled {
-        poses: &valid_poses,
-        rows: &valid_rows,
-    });
-    let settings = ContinuousSettings {
-        learn_threshold: true,
-        ..ContinuousSettings::default()
-    };
-    Continuous::fit(&settings, &data).expect("fits")
+    fitted_continuous(features, per_side, 100, NOISE, true, 1)
 }
 
 /// A frame at a random pose: each feature stuck at its value of another pose (in range), far
