@@ -1,5 +1,4 @@
 use super::*;
-use crate::estimator::EstimateFlags;
 
 fn workspace() -> Rect {
     Rect {
@@ -13,13 +12,9 @@ fn workspace() -> Rect {
 fn estimate(pose: [f64; 2], sigma: f64, score: Option<f64>) -> PoseEstimate {
     PoseEstimate {
         pose: Some(pose),
-        uncertainty_radius: None,
-        group: None,
-        conflict_level: None,
         detection_score: score,
-        region: None,
         covariance: Some([[sigma * sigma, 0.0], [0.0, sigma * sigma]]),
-        flags: EstimateFlags::default(),
+        ..Default::default()
     }
 }
 

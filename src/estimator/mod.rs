@@ -105,7 +105,7 @@ pub enum EstimatorError {
 }
 
 /// One frame's estimate and diagnostics. Diagnostics a method has no notion of are `None`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct PoseEstimate {
     /// Estimated pose (mm); `None` when the frame gives the method nothing to estimate from.
     pub pose: Option<[f64; 2]>,

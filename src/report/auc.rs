@@ -84,14 +84,8 @@ mod tests {
     /// A record with this score, corrupted or clean.
     fn record(score: Option<f64>, corrupted: bool) -> FrameRecord {
         let estimate = PoseEstimate {
-            pose: None,
-            uncertainty_radius: None,
-            group: None,
-            conflict_level: None,
             detection_score: score,
-            region: None,
-            covariance: None,
-            flags: Default::default(),
+            ..Default::default()
         };
         let faults = FrameFaults {
             faults: if corrupted { vec!["f".into()] } else { vec![] },

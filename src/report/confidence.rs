@@ -232,16 +232,11 @@ mod tests {
     fn record(error: f64, area: f64, abstained: bool) -> FrameRecord {
         let estimate = PoseEstimate {
             pose: Some([error, 0.0]),
-            uncertainty_radius: None,
-            group: None,
-            conflict_level: None,
-            detection_score: None,
-            region: None,
-            covariance: None,
             flags: EstimateFlags {
                 abstained,
                 ..EstimateFlags::default()
             },
+            ..Default::default()
         };
         let mut r = FrameRecord::new("m", "test0", 0, 0.0, Some([0.0, 0.0]), &estimate, &[]);
         r.region_area = Some(area);

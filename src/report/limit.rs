@@ -110,13 +110,7 @@ mod tests {
     fn record(error: f64, limit: Option<f64>, corrupted: bool) -> FrameRecord {
         let estimate = crate::estimator::PoseEstimate {
             pose: Some([error, 0.0]),
-            uncertainty_radius: None,
-            group: None,
-            conflict_level: None,
-            detection_score: None,
-            region: None,
-            covariance: None,
-            flags: crate::estimator::EstimateFlags::default(),
+            ..Default::default()
         };
         let r = FrameRecord::new("m", "test0", 0, 0.0, Some([0.0, 0.0]), &estimate, &[]);
         let faults = crate::faults::FrameFaults {

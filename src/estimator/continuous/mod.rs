@@ -481,17 +481,11 @@ impl PoseEstimator for Continuous {
         let mut frame = Frame::new(self, self.usable(values));
         let usable = frame.usable_mask;
         let mut estimate = PoseEstimate {
-            pose: None,
-            uncertainty_radius: None,
-            group: None,
-            conflict_level: None,
-            detection_score: None,
-            region: None,
-            covariance: None,
             flags: EstimateFlags {
                 missing,
                 ..EstimateFlags::default()
             },
+            ..PoseEstimate::default()
         };
         if usable == 0 {
             return Ok(estimate);
