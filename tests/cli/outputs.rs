@@ -90,8 +90,8 @@ fn scan(dir: &Path, bad: &mut Vec<String>) -> usize {
     files
 }
 
-/// A scenario file made quick: at most a 1 mm mesh, motions of at most 2 s, and of its sweep
-/// only the variants that inject faults.
+/// A scenario file made quick: a mesh of 2 mm or coarser, motions of at most 2 s, and of its
+/// sweep only the variants that inject faults.
 fn shrunk(text: &str) -> String {
     let mut table: toml::Table = text.parse().unwrap();
     let cap = |t: &mut toml::Table| {
@@ -102,7 +102,7 @@ fn shrunk(text: &str) -> String {
     if let Some(toml::Value::Table(sample)) = table.get_mut("sample") {
         if let Some(toml::Value::Table(motion)) = sample.get_mut("motion") {
             if let Some(toml::Value::Float(s)) = motion.get_mut("spacing") {
-                *s = s.max(1.0);
+                *s = s.max(2.0);
             }
         }
     }

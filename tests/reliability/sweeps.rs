@@ -120,7 +120,7 @@ const KILL_SCENARIO: &str = r#"
 name = "kill"
 estimators = ["evidential", "knn"]
 [sample]
-motion = { kind = "mesh", spacing = 1.0 }
+motion = { kind = "mesh", spacing = 2.0 }
 [validation]
 kind = "circle"
 radius = 4.0
