@@ -24,6 +24,9 @@ impl GroupLevels for CellLevels<'_> {
 
     fn group_level(&mut self, group: GroupMask) -> f64 {
         match self.tracker.settings.constructor {
+            Constructor::Bayesian if group.count_ones() == 2 => self
+                .pair_level_bayesian(group)
+                .unwrap_or_else(|| self.tracker.general_level(group, self.usable)),
             Constructor::Bayesian => self
                 .tuples
                 .level(self.tracker, self.usable, group)
@@ -34,6 +37,36 @@ impl GroupLevels for CellLevels<'_> {
 
     fn fallback_feature(&self) -> Option<usize> {
         self.tracker.fallback_feature(self.usable)
+    }
+
+    fn cheap_pairs(&self) -> bool {
+        self.tracker.settings.constructor == Constructor::Bayesian
+    }
+}
+
+impl CellLevels<'_> {
+    /// The Bayesian level of a pair from its few state tuples, bit-identical to the grown level
+    /// of [`TupleStack`] (same products, summed in the same order); `None` as there.
+    fn pair_level_bayesian(&self, group: GroupMask) -> Option<f64> {
+        let (i, j) = (
+            group.trailing_zeros() as usize,
+            63 - group.leading_zeros() as usize,
+        );
+        let (a, b) = (self.usable[i].as_ref()?, self.usable[j].as_ref()?);
+        let (mut s, mut possible) = (0.0, false);
+        for &(x, y) in self.tracker.pair_tuples.of(i, j) {
+            let (ca, cb) = (a.contour[x as usize], b.contour[y as usize]);
+            possible |= ca > 0.0 && cb > 0.0;
+            s += ca * cb;
+        }
+        if !possible {
+            return Some(f64::INFINITY);
+        }
+        if s.is_nan() || s <= 1e-280 {
+            return None;
+        }
+        let log_scale: f64 = [a.scale, b.scale].iter().map(|c| c.ln()).sum();
+        Some((-(s.ln() + log_scale)).max(0.0))
     }
 }
 
@@ -72,3 +105,7 @@ impl Tracker {
             })
     }
 }
+
+#[cfg(test)]
+#[path = "cell_levels_tests.rs"]
+mod tests;

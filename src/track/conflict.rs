@@ -290,6 +290,12 @@ mod tests {
                     t.fast_level(g, usable).map(f64::to_bits),
                     "group {g:b}"
                 );
+                // A pair's level from its state tuples, as the search reads it.
+                if let (2, Some(k)) = (g.count_ones(), grown) {
+                    use crate::track::group_search::GroupLevels;
+                    let from_tuples = t.cell_levels(usable).group_level(g);
+                    assert_eq!(from_tuples.to_bits(), k, "pair {g:b}");
+                }
             }
         }
     }

@@ -8,13 +8,22 @@
 //! No policy lists every complete subgraph (2^n of them for a complete graph of n features): the
 //! maximal cliques come from Bron–Kerbosch with pivoting, and the searches below them walk the
 //! cliques depth first in lexicographic order, pruned by size and by Theorem 4.3 (a group's level
-//! only grows as features are added), so the levels computed follow what the policy needs.
+//! only grows as features are added), so the levels computed follow what the policy needs. The
+//! largest subset looks for each size from the largest down (the size bound then cuts every
+//! branch that cannot reach it), and with cheap pair levels a candidate whose pair with a member
+//! is beyond the bound at hand is dropped before any group holding it is computed.
 
 use std::cmp::Ordering;
 use std::collections::HashMap;
 
 use super::settings::SelectionPolicy;
 use crate::evidence::ConflictLevel;
+
+#[path = "group_exhaustive.rs"]
+mod exhaustive;
+#[cfg(test)]
+use exhaustive::all_cliques;
+use exhaustive::every_clique;
 
 /// A group of features as a bit mask: bit `i` is feature `i`.
 pub type GroupMask = u64;
@@ -54,6 +63,13 @@ pub trait GroupLevels {
     /// candidate's level up front and pays when levels are costly and a few features conflict
     /// with many: the size bound then sees only the compatible candidates).
     fn narrow_candidates(&self) -> bool {
+        false
+    }
+    /// Whether a pair's group level costs next to nothing (the paper's Bayesian levels: a few
+    /// state tuples). The search then drops, before going below a group, each candidate whose
+    /// pair with the newest member is beyond the bound at hand (sound by Theorem 4.3), so that
+    /// groups are ruled out, and the size bound tightened, before any of their levels is computed.
+    fn cheap_pairs(&self) -> bool {
         false
     }
 }
@@ -165,11 +181,19 @@ fn choose(
     let (mut chosen, mut alternatives) = if exhaustive {
         every_clique(levels, &adj, usable_mask, policy, threshold)
     } else {
+        let cheap_pairs = levels.cheap_pairs();
         let mut search = Search {
             levels: &mut *levels,
             adj,
             memo: HashMap::new(),
             threshold,
+            cut: threshold.value(),
+            pairs: if cheap_pairs {
+                vec![f64::NAN; features * features]
+            } else {
+                Vec::new()
+            },
+            features,
         };
         match policy {
             SelectionPolicy::LargestSubset => (search.largest(usable_mask), Vec::new()),
@@ -262,6 +286,13 @@ struct Search<'a, L: GroupLevels> {
     adj: Vec<GroupMask>,
     memo: HashMap<GroupMask, f64>,
     threshold: ConflictLevel,
+    /// The bound beyond which no group the current walk looks for can lie: candidates whose
+    /// pair with a member is beyond it are dropped (with cheap pairs). It never rises in a walk.
+    cut: f64,
+    /// With cheap pairs, the pairs' levels by `i * features + j` (NaN until computed), the
+    /// pairwise test's lookups cheaper than the memo's; empty otherwise.
+    pairs: Vec<f64>,
+    features: usize,
 }
 
 impl<L: GroupLevels> Search<'_, L> {
@@ -295,12 +326,35 @@ impl<L: GroupLevels> Search<'_, L> {
         while rest != 0 {
             let j = rest.trailing_zeros() as usize;
             rest &= rest - 1;
-            let (next, below) = (group | 1 << j, rest & self.adj[j]);
+            let next = group | 1 << j;
+            let below = self.pair_compatible(j, rest & self.adj[j]);
             if visit(self, next, below) {
                 let below = self.compatible(next, below);
                 self.walk(next, below, visit);
             }
         }
+    }
+
+    /// The `candidates` whose pair with feature `j` is within the cut (all of them without cheap
+    /// pairs). The candidates came down already checked against the group's other members.
+    fn pair_compatible(&mut self, j: usize, candidates: GroupMask) -> GroupMask {
+        // At the threshold the conflict graph's edges already tell.
+        if self.pairs.is_empty() || self.cut >= self.threshold.value() {
+            return candidates;
+        }
+        let cut = self.cut;
+        let mut kept = 0;
+        for k in members(candidates) {
+            let slot = j * self.features + k;
+            if self.pairs[slot].is_nan() {
+                self.pairs[slot] = self.level(1 << j | 1 << k);
+            }
+            // A NaN level stays NaN and is beyond every bound, as `beyond` says.
+            if !Self::beyond(self.pairs[slot], cut) {
+                kept |= 1 << k;
+            }
+        }
+        kept
     }
 
     /// The `candidates` that, added to `group`, stay within the threshold (all of them unless
@@ -333,8 +387,9 @@ impl<L: GroupLevels> Search<'_, L> {
     }
 
     /// The largest eligible group. The maximum cliques come first (for a complete graph, the
-    /// one group of every feature): when none is eligible, a branch and bound over the cliques
-    /// finds the largest eligible size.
+    /// one group of every feature): when none is eligible, one walk per size, largest first,
+    /// lists the eligible groups of that size (a feature or two at fault leave a size near the
+    /// top, where the size bound leaves few branches).
     fn largest(&mut self, usable: GroupMask) -> Option<(f64, GroupMask)> {
         if usable.count_ones() == 1 {
             return Some((0.0, usable));
@@ -353,30 +408,31 @@ impl<L: GroupLevels> Search<'_, L> {
         if let Some(chosen) = self.first_lowest(&top) {
             return Some(chosen);
         }
+        // Every larger clique is ruled out: look for eligible groups of each size below, largest
+        // first, so that the size bound prunes every branch that cannot reach it.
         let bound = self.threshold.value();
-        let (mut size, mut found) = (1, Vec::new());
-        self.walk(0, usable, &mut |s, g, candidates| {
-            let n = g.count_ones();
-            if n + candidates.count_ones() < size {
-                return false;
-            }
-            if n < 2 {
-                return true;
-            }
-            let k = s.level(g);
-            if Self::beyond(k, bound) {
-                return false;
-            }
-            if n >= size && s.threshold.admits(k) {
-                if n > size {
-                    size = n;
-                    found.clear();
+        self.cut = bound;
+        for size in (2..omega).rev() {
+            let mut found = Vec::new();
+            self.walk(0, usable, &mut |s, g, candidates| {
+                let n = g.count_ones();
+                if n + candidates.count_ones() < size {
+                    return false;
                 }
-                found.push(g);
+                if n < 2 {
+                    return true;
+                }
+                let k = s.level(g);
+                if n == size && s.threshold.admits(k) {
+                    found.push(g);
+                }
+                n < size && !Self::beyond(k, bound)
+            });
+            if !found.is_empty() {
+                return self.first_lowest(&found);
             }
-            true
-        });
-        self.first_lowest(&found)
+        }
+        None
     }
 
     /// The eligible group of at least `min_size` features with the lowest level; ties within the
@@ -386,6 +442,7 @@ impl<L: GroupLevels> Search<'_, L> {
         let bound = self.threshold.value();
         // K only grows, so the lowest level is a group of exactly `m` features.
         let mut lowest: Option<f64> = None;
+        self.cut = bound;
         self.walk(0, usable, &mut |s, g, candidates| {
             let n = g.count_ones();
             if n + candidates.count_ones() < m {
@@ -397,10 +454,12 @@ impl<L: GroupLevels> Search<'_, L> {
             }
             if n == m && s.threshold.admits(k) && lowest.is_none_or(|l| k < l) {
                 lowest = Some(k);
+                s.cut = s.cut.min(k);
             }
             n < m
         });
         let lowest = lowest?;
+        self.cut = lowest + TIE;
         let mut chosen: Option<(f64, GroupMask)> = None;
         self.walk(0, usable, &mut |s, g, candidates| {
             let n = g.count_ones();
@@ -425,6 +484,7 @@ impl<L: GroupLevels> Search<'_, L> {
     fn maximal_eligible(&mut self, usable: GroupMask, min_size: usize) -> Vec<(f64, GroupMask)> {
         let m = min_size.max(1) as u32;
         let bound = self.threshold.value();
+        self.cut = bound;
         // An eligible maximal clique is a maximal eligible group; below the others, search.
         let mut found: Vec<GroupMask> = Vec::new();
         for g in maximal_cliques(usable, &self.adj) {
@@ -458,100 +518,6 @@ impl<L: GroupLevels> Search<'_, L> {
         sort_alternatives(&mut alternatives);
         alternatives
     }
-}
-
-/// Every complete subgraph, by increasing size, lexicographic within a size (the old code).
-fn all_cliques(usable: GroupMask, adj: &[GroupMask]) -> Vec<GroupMask> {
-    let mut all: Vec<GroupMask> = members(usable).map(|i| 1 << i).collect();
-    let mut start = 0;
-    while start < all.len() {
-        let end = all.len();
-        for g in start..end {
-            let group = all[g];
-            let top = 63 - group.leading_zeros() as usize;
-            for (j, &aj) in adj.iter().enumerate().skip(top + 1) {
-                if usable >> j & 1 == 1 && aj & group == group {
-                    all.push(group | 1 << j);
-                }
-            }
-        }
-        start = end;
-    }
-    all
-}
-
-/// The chosen group and alternatives over every complete subgraph, by increasing size
-/// (exponential in the number of features): for level functions that may not grow exactly, and
-/// the search's reference.
-fn every_clique(
-    levels: &mut impl GroupLevels,
-    adj: &[GroupMask],
-    usable_mask: GroupMask,
-    policy: SelectionPolicy,
-    threshold: ConflictLevel,
-) -> Choice {
-    let groups = all_cliques(usable_mask, adj);
-    let mut memo: HashMap<GroupMask, f64> = HashMap::new();
-    let mut level =
-        |g: GroupMask, bound: f64| memoised_level(&mut memo, g, bound, || levels.group_level(g));
-    let min_size = policy.min_size();
-    let mut chosen: Option<(f64, GroupMask)> = None;
-    let mut alternatives: Vec<(f64, GroupMask)> = Vec::new();
-    match policy {
-        SelectionPolicy::LargestSubset => {
-            let mut size = groups.last().map_or(0, |g| g.count_ones());
-            while size >= 1 && chosen.is_none() {
-                for &g in groups.iter().filter(|g| g.count_ones() == size) {
-                    let k = level(g, f64::INFINITY);
-                    if threshold.admits(k) && chosen.is_none_or(|(best, _)| k < best - TIE) {
-                        chosen = Some((k, g));
-                    }
-                }
-                size -= 1;
-            }
-            if chosen.is_some_and(|(_, g)| g.count_ones() == 1) && usable_mask.count_ones() > 1 {
-                chosen = None;
-            }
-        }
-        SelectionPolicy::LowestConflict { .. } => {
-            for &g in groups
-                .iter()
-                .filter(|g| g.count_ones() as usize >= min_size)
-            {
-                let bound = chosen.map_or(f64::INFINITY, |(k, _)| k);
-                let k = level(g, bound);
-                if threshold.admits(k) {
-                    let better = match chosen {
-                        None => true,
-                        Some((best, bg)) => {
-                            k < best - TIE || (k <= best + TIE && g.count_ones() > bg.count_ones())
-                        }
-                    };
-                    if better {
-                        chosen = Some((k, g));
-                    }
-                }
-            }
-        }
-        SelectionPolicy::Splitting { .. } => {
-            for &g in groups
-                .iter()
-                .rev()
-                .filter(|g| g.count_ones() as usize >= min_size)
-            {
-                if alternatives.iter().any(|&(_, a)| g & a == g) {
-                    continue;
-                }
-                let k = level(g, f64::INFINITY);
-                if threshold.admits(k) {
-                    alternatives.push((k, g));
-                }
-            }
-            sort_alternatives(&mut alternatives);
-            chosen = alternatives.first().copied();
-        }
-    }
-    (chosen, alternatives)
 }
 
 #[cfg(test)]

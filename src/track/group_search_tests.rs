@@ -12,6 +12,8 @@ struct RandomLevels {
     forbidden: Vec<GroupMask>,
     fallback: Option<usize>,
     calls: usize,
+    /// Whether the search may bound groups by their pairs' levels.
+    cheap: bool,
 }
 
 impl RandomLevels {
@@ -44,6 +46,7 @@ impl RandomLevels {
             forbidden,
             fallback: Some(rng.random_range(0..n)),
             calls: 0,
+            cheap: rng.random_bool(0.5),
         }
     }
 
@@ -74,6 +77,9 @@ impl GroupLevels for RandomLevels {
     fn fallback_feature(&self) -> Option<usize> {
         self.fallback
     }
+    fn cheap_pairs(&self) -> bool {
+        self.cheap
+    }
 }
 
 #[test]
@@ -81,7 +87,7 @@ fn every_policy_chooses_as_the_exhaustive_enumeration_on_random_graphs() {
     let mut rng = ChaCha8Rng::seed_from_u64(16);
     let mut outcomes = [0usize; 3]; // several features, one feature, fallback
     for case in 0..20_000 {
-        let n = rng.random_range(1..=11);
+        let n = rng.random_range(1..=12);
         let mut levels = RandomLevels::new(&mut rng, n);
         let usable = loop {
             let u: GroupMask = rng.random_range(1..1u64 << n);
@@ -126,6 +132,7 @@ fn a_complete_graph_of_64_features_costs_one_group_level_under_largest_subset() 
         forbidden: Vec::new(),
         fallback: Some(0),
         calls: 0,
+        cheap: false,
     };
     let all = GroupMask::MAX;
     // The selection of every feature under `policy`, threshold ∞, and the group levels it cost.
@@ -144,6 +151,67 @@ fn a_complete_graph_of_64_features_costs_one_group_level_under_largest_subset() 
     levels.single = vec![0.0; 64];
     let (s, calls) = select(&mut levels, SelectionPolicy::LowestConflict { min_size: 2 });
     assert_eq!((s.chosen.map(|c| c.1), calls), (Some(all), 2016 + 62));
+}
+
+/// Levels of `n` features where feature `bad` adds `cost` with every other member (a faulty
+/// feature); the others agree (0).
+fn one_faulty_feature(n: usize, bad: usize, cost: f64, cheap: bool) -> RandomLevels {
+    let mut pair = vec![vec![0.0; n]; n];
+    for j in (0..n).filter(|&j| j != bad) {
+        pair[bad][j] = cost;
+        pair[j][bad] = cost;
+    }
+    RandomLevels {
+        single: vec![0.0; n],
+        pair,
+        forbidden: Vec::new(),
+        fallback: Some(0),
+        calls: 0,
+        cheap,
+    }
+}
+
+#[test]
+fn one_faulty_feature_among_32_costs_a_few_hundred_levels_under_largest_subset() {
+    // Feature 0 with 10 others is at the threshold, with 11 beyond it: the largest eligible
+    // group is every other feature. Walking down from the size of the full group, the size
+    // bound leaves one missing feature per branch, so each chain holding feature 0 stops
+    // after at most 11 members instead of listing the C(31, ≤ 10) eligible groups holding it.
+    for cheap in [false, true] {
+        let mut levels = one_faulty_feature(32, 0, 0.1, cheap);
+        let all: GroupMask = (1 << 32) - 1;
+        let threshold = ConflictLevel::Finite(1.0);
+        let s = select_group(
+            &mut levels,
+            32,
+            all,
+            SelectionPolicy::LargestSubset,
+            threshold,
+        );
+        assert_eq!(s.chosen.map(|c| c.1), Some(all & !1));
+        assert!(levels.calls <= 400, "{} group levels", levels.calls);
+    }
+}
+
+#[test]
+fn cheap_pairs_rule_out_the_groups_above_the_lowest_level_before_computing_them() {
+    // Every pair holding feature 11 costs 0.5, the others (about) 0: the lowest level is a pair
+    // of the others and no group holding feature 11 can reach it. With cheap pairs those groups
+    // are never computed.
+    let n = 12;
+    let all: GroupMask = (1 << n) - 1;
+    let policy = SelectionPolicy::LowestConflict { min_size: 2 };
+    let mut calls = Vec::new();
+    for cheap in [false, true] {
+        let mut levels = one_faulty_feature(n, 11, 0.5, cheap);
+        let s = select_group(&mut levels, n, all, policy, ConflictLevel::Finite(10.0));
+        assert_eq!(s.chosen.map(|c| c.1), Some(all & !(1 << 11)));
+        calls.push(levels.calls);
+    }
+    // With cheap pairs: the 66 pairs, then the chain of ties {0, 1} ⊂ … ⊂ {0, …, 10} (9 groups
+    // above the pairs); without, also each link of the chain with feature 11 added.
+    assert_eq!(calls[1], 66 + 9, "{calls:?}");
+    assert!(calls[1] < calls[0], "{calls:?}");
 }
 
 #[test]

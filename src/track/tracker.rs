@@ -22,7 +22,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::cells::Cells;
+use super::cells::{Cells, PairTuples};
 use super::settings::{CheckedTrackSettings, TrackSettings};
 use super::tracker_model::TrackerModel;
 use super::TrackError;
@@ -182,6 +182,8 @@ pub struct Tracker {
     pub(super) to_cells: Vec<Refining>,
     /// `co[i][j][a]` for i < j: the states of feature j that occur together with state a of i.
     pub(super) co: Vec<Vec<Vec<Subset>>>,
+    /// Per pair of features, its state tuples on the cells (cheap exact pair levels).
+    pub(super) pair_tuples: PairTuples,
     /// Each feature's reliability (1 without discounting).
     pub(super) alpha: Vec<f64>,
 }
@@ -198,6 +200,7 @@ impl Tracker {
             cell_size,
             to_cells,
             co,
+            pair_tuples,
         } = Cells::new(&model)?;
         let alpha = super::fusion::reliabilities(&model, settings.get(), cell_size.len())?;
         Ok(Tracker {
@@ -207,6 +210,7 @@ impl Tracker {
             cell_size,
             to_cells,
             co,
+            pair_tuples,
             alpha,
         })
     }

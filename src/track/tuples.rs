@@ -7,6 +7,7 @@ use super::group_search::{members, GroupMask};
 use super::tracker::{Tracker, Usable};
 
 /// The distinct state tuples of one group on the cells.
+#[derive(Default)]
 struct Tuples {
     group: GroupMask,
     /// Each cell's tuple, numbered by first occurrence.
@@ -15,12 +16,19 @@ struct Tuples {
     product: Vec<f64>,
     /// Whether every factor of that product is positive.
     positive: Vec<bool>,
+    /// Σ ln(scale) of the members, summed in member order.
+    log_scale: f64,
 }
 
-/// The chain of prefixes of the last group asked for, each with its tuples.
+/// The chain of prefixes of the last group asked for, each with its tuples, and the buffers of
+/// dropped ones for reuse (the search asks for thousands of groups a frame).
 #[derive(Default)]
 pub(super) struct TupleStack {
     chain: Vec<Tuples>,
+    spare: Vec<Tuples>,
+    remap: Vec<u32>,
+    /// Parent tuple and state of each new tuple, in order of first occurrence.
+    firsts: Vec<(u32, u32)>,
 }
 
 impl TupleStack {
@@ -43,11 +51,11 @@ impl TupleStack {
             group & below == p
         };
         while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
-            self.chain.pop();
+            self.spare.extend(self.chain.pop());
         }
-        // Nothing to grow from (a maximum clique, before any walk): one direct computation is
-        // cheaper than building every prefix.
-        if self.chain.is_empty() && group.count_ones() > 2 {
+        // Nothing to grow from and a large group (a maximum clique, before any walk): one
+        // direct computation is cheaper than building every prefix.
+        if self.chain.is_empty() && group.count_ones() > 4 {
             return tracker.bayesian_group_level(group, usable);
         }
         let mut built = self.chain.last().map_or(0, |t| t.group);
@@ -67,46 +75,64 @@ impl TupleStack {
         if s.is_nan() || s <= 1e-280 {
             return None;
         }
-        let scales: Vec<f64> = members(group)
-            .map(|i| usable[i].as_ref().map(|u| u.scale))
-            .collect::<Option<_>>()?;
-        let log_scale: f64 = scales.iter().map(|c| c.ln()).sum();
-        Some((-(s.ln() + log_scale)).max(0.0))
+        Some((-(s.ln() + tuples.log_scale)).max(0.0))
     }
 
     /// The tuples of `group`: the last group of the chain (or none) with feature `i` added.
-    fn extend(&self, tracker: &Tracker, group: GroupMask, i: usize, feature: &Usable) -> Tuples {
+    fn extend(
+        &mut self,
+        tracker: &Tracker,
+        group: GroupMask,
+        i: usize,
+        feature: &Usable,
+    ) -> Tuples {
         let states = tracker.to_cells[i].assignment();
         let n = tracker.to_cells[i].coarse_size();
-        let cells = states.len();
-        let (parent_id, parent_count) = match self.chain.last() {
-            Some(t) => (Some(&t.id), t.product.len()),
-            None => (None, 1),
-        };
-        let mut remap = vec![u32::MAX; parent_count * n];
-        let mut id = Vec::with_capacity(cells);
-        let mut product = Vec::new();
-        let mut positive = Vec::new();
-        for (u, &su) in states.iter().enumerate() {
-            let p = parent_id.map_or(0, |ids| ids[u] as usize);
-            let key = p * n + su;
-            if remap[key] == u32::MAX {
-                remap[key] = product.len() as u32;
-                let c = feature.contour[su];
-                let (before, all_positive) = match self.chain.last() {
-                    Some(t) => (t.product[p], t.positive[p]),
-                    None => (1.0, true),
-                };
-                product.push(before * c);
-                positive.push(all_positive && c > 0.0);
+        let mut next = self.spare.pop().unwrap_or_default();
+        next.group = group;
+        next.id.clear();
+        next.product.clear();
+        next.positive.clear();
+        let parent = self.chain.last();
+        let parent_count = parent.map_or(1, |t| t.product.len());
+        // The sum of ln(scale) in member order, as `members(..).map(ln).sum()` adds it.
+        next.log_scale = parent.map_or(0.0, |t| t.log_scale) + feature.scale.ln();
+        self.remap.clear();
+        self.remap.resize(parent_count * n, u32::MAX);
+        next.id.resize(states.len(), 0);
+        // Number the tuples in one tight pass, then take the products of the new ones (in the
+        // same order, so the same bits).
+        let (remap, firsts) = (&mut self.remap, &mut self.firsts);
+        firsts.clear();
+        let mut number = |p: usize, su: usize| {
+            let slot = &mut remap[p * n + su];
+            if *slot == u32::MAX {
+                *slot = firsts.len() as u32;
+                firsts.push((p as u32, su as u32));
             }
-            id.push(remap[key]);
+            *slot
+        };
+        match parent {
+            Some(t) => {
+                for ((out, &p), &su) in next.id.iter_mut().zip(&t.id).zip(states) {
+                    *out = number(p as usize, su);
+                }
+            }
+            None => {
+                for (out, &su) in next.id.iter_mut().zip(states) {
+                    *out = number(0, su);
+                }
+            }
         }
-        Tuples {
-            group,
-            id,
-            product,
-            positive,
+        for &(p, su) in self.firsts.iter() {
+            let c = feature.contour[su as usize];
+            let (before, all_positive) = match parent {
+                Some(t) => (t.product[p as usize], t.positive[p as usize]),
+                None => (1.0, true),
+            };
+            next.product.push(before * c);
+            next.positive.push(all_positive && c > 0.0);
         }
+        next
     }
 }

@@ -1,0 +1,144 @@
+//! The pruned selection on the paper tracker's own levels (pairs from their state tuples, groups
+//! grown one feature at a time) against the exhaustive enumeration, on random frames with stuck
+//! and outlying features.
+
+use super::super::group_search::select_group_exhaustive;
+use super::*;
+use crate::evidence::{ConflictLevel, Refining};
+use crate::track::{SelectionPolicy, TrackSettings, TrackedFeature, TrackerModel};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// A linear feature: its direction, the lower end of its bins, their width, its state count.
+type Spec = ([f64; 2], f64, f64, usize);
+
+/// A tracker over the 12 × 12 mesh of the 11 mm square with `n` linear features of random
+/// direction and 2–4 states, and the features' directions and bins.
+fn random_tracker(
+    rng: &mut ChaCha8Rng,
+    n: usize,
+    constructor: Constructor,
+) -> (Tracker, Vec<Spec>) {
+    let poses: Vec<[f64; 2]> = (0..144)
+        .map(|q| [f64::from(q % 12), f64::from(q / 12)])
+        .collect();
+    let mut features = Vec::new();
+    let mut specs = Vec::new();
+    for _ in 0..n {
+        let a: f64 = rng.random_range(0.0..std::f64::consts::PI);
+        let coef = [a.cos(), a.sin()];
+        let states = rng.random_range(2..=4);
+        let values: Vec<f64> = poses
+            .iter()
+            .map(|p| coef[0] * p[0] + coef[1] * p[1])
+            .collect();
+        let lo = values.iter().copied().fold(f64::INFINITY, f64::min) - 0.5;
+        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 0.5;
+        let w = (hi - lo) / states as f64;
+        let assignment: Vec<usize> = values
+            .iter()
+            .map(|v| (((v - lo) / w).floor() as usize).min(states - 1))
+            .collect();
+        features.push(TrackedFeature {
+            refining: Refining::from_assignment(states, &assignment).unwrap(),
+            validation_error: None,
+        });
+        specs.push((coef, lo, w, states));
+    }
+    let model = TrackerModel::new(poses, features).unwrap();
+    let settings = TrackSettings {
+        constructor,
+        ..TrackSettings::default()
+    };
+    (
+        Tracker::new(model, settings.check().unwrap()).unwrap(),
+        specs,
+    )
+}
+
+/// One frame at a random pose: each feature's likelihoods of its states, some features stuck
+/// on one state whatever the pose, some reporting a pose 6 mm away.
+fn random_frame(rng: &mut ChaCha8Rng, specs: &[Spec]) -> Vec<Option<Vec<f64>>> {
+    let p = [rng.random_range(0.0..11.0), rng.random_range(0.0..11.0)];
+    let far = [if p[0] < 5.5 { p[0] + 6.0 } else { p[0] - 6.0 }, p[1]];
+    specs
+        .iter()
+        .map(|&(coef, lo, w, states)| {
+            let kind = rng.random_range(0..8);
+            if kind == 0 {
+                let stuck = rng.random_range(0..states);
+                return Some(
+                    (0..states)
+                        .map(|s| if s == stuck { 1.0 } else { 0.02 })
+                        .collect(),
+                );
+            }
+            let q = if kind == 1 { far } else { p };
+            let v = coef[0] * q[0] + coef[1] * q[1] + rng.random_range(-0.2 * w..0.2 * w);
+            Some(
+                (0..states)
+                    .map(|s| {
+                        let c = lo + (s as f64 + 0.5) * w;
+                        (-(v - c).powi(2) / (0.5 * w * w)).exp()
+                    })
+                    .collect(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn the_pruned_selection_equals_the_exhaustive_one_on_random_frames_with_faulty_features() {
+    let mut rng = ChaCha8Rng::seed_from_u64(32);
+    let policies = [
+        SelectionPolicy::LargestSubset,
+        SelectionPolicy::LowestConflict { min_size: 1 },
+        SelectionPolicy::LowestConflict { min_size: 2 },
+        SelectionPolicy::LowestConflict { min_size: 3 },
+        SelectionPolicy::Splitting { min_size: 1 },
+        SelectionPolicy::Splitting { min_size: 2 },
+        SelectionPolicy::Splitting { min_size: 3 },
+    ];
+    // Chosen groups that left features out, and splits into several alternatives.
+    let (mut partial, mut split) = (0, 0);
+    for constructor in [Constructor::Bayesian, Constructor::Consonant] {
+        for _model in 0..10 {
+            let top = if constructor == Constructor::Bayesian {
+                12
+            } else {
+                9
+            };
+            let n = rng.random_range(4..=top);
+            let (tracker, specs) = random_tracker(&mut rng, n, constructor);
+            for _frame in 0..6 {
+                let lik = random_frame(&mut rng, &specs);
+                let (usable, _) = tracker.measure(&lik).unwrap();
+                let all = (0..n)
+                    .filter(|&i| usable[i].is_some())
+                    .fold(0, |m: GroupMask, i| m | 1 << i);
+                let full = tracker.raw_level(all, &usable);
+                // Thresholds around the frame's own full level, so that some groups pass.
+                let thresholds = [0.3, 0.6, 0.9, 1.1].map(|f| ConflictLevel::from_value(f * full));
+                for threshold in thresholds.into_iter().chain([ConflictLevel::Infinite]) {
+                    for policy in policies {
+                        let mut levels = tracker.cell_levels(&usable);
+                        let pruned = select_group(&mut levels, n, all, policy, threshold);
+                        let mut levels = tracker.cell_levels(&usable);
+                        let every = select_group_exhaustive(&mut levels, n, all, policy, threshold);
+                        assert_eq!(
+                            pruned, every,
+                            "{constructor:?} n {n} {policy:?} {threshold:?}"
+                        );
+                        let chosen = pruned.chosen.map_or(0, |c| c.1);
+                        partial += usize::from(chosen != all && chosen.count_ones() > 1);
+                        split += usize::from(pruned.alternatives.len() > 1);
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        partial > 100 && split > 20,
+        "partial {partial}, split {split}"
+    );
+}
