@@ -6,9 +6,16 @@
 //! `clean`/`stuck` at 64 features: the same maps, learned threshold; `stuck` has 4 features
 //! stuck 0.6 off (inside their ranges, so only the group levels exclude them). Target (64
 //! features, 4 stuck): median ≤ 10 ms.
+//! `rule/…`: one frame per fusion rule (issue 30), 8 features, every usable feature combined
+//! (`combine = "all"`), two stuck as in `faulty`: Dempster's, discounted by 0.9, learned, and the
+//! cautious rule.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use evitrack::estimator::test_maps::{feature_row, fitted_continuous, workspace_points};
-use evitrack::estimator::{Continuous, PoseEstimator};
+use evitrack::estimator::test_maps::{
+    feature_row, fitted_continuous, workspace_mesh, workspace_points,
+};
+use evitrack::estimator::{Continuous, ContinuousSettings, Labelled, PoseEstimator, TrainingSet};
+use evitrack::evidence::Rule;
+use evitrack::track::{Combine, Discount};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
@@ -57,7 +64,55 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    for (name, rule, discount) in [
+        ("dempster", Rule::Dempster, Discount::None),
+        ("dempster-0.9", Rule::Dempster, Discount::Fixed(0.9)),
+        ("dempster-learned", Rule::Dempster, Discount::Learned),
+        ("cautious", Rule::Cautious, Discount::None),
+    ] {
+        let model = with_rule(rule, discount);
+        let rows = frames(8, &two);
+        let mut k = 0;
+        group.bench_function(BenchmarkId::new("rule", name), |b| {
+            b.iter(|| {
+                k = (k + 1) % rows.len();
+                black_box(model.estimate(black_box(&rows[k])).expect("estimates"))
+            })
+        });
+    }
     group.finish();
+}
+
+/// The 8 test maps on the 1 mm mesh with 100 validation poses, every feature combined by `rule`.
+fn with_rule(rule: Rule, discount: Discount) -> Continuous {
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let poses = workspace_mesh(20);
+    let rows: Vec<_> = (poses.iter())
+        .map(|&q| feature_row(8, q, NOISE, &mut rng))
+        .collect();
+    let valid_poses = workspace_points(100, &mut rng);
+    let valid_rows: Vec<_> = (valid_poses.iter())
+        .map(|&q| feature_row(8, q, NOISE, &mut rng))
+        .collect();
+    let names: Vec<String> = (0..8).map(|i| format!("f{i}")).collect();
+    let mut data = TrainingSet::new(
+        &names,
+        Labelled {
+            poses: &poses,
+            rows: &rows,
+        },
+    );
+    data.validation = Some(Labelled {
+        poses: &valid_poses,
+        rows: &valid_rows,
+    });
+    let settings = ContinuousSettings {
+        combine: Combine::All,
+        rule,
+        discount,
+        ..ContinuousSettings::default()
+    };
+    Continuous::fit(&settings, &data).expect("the test maps fit")
 }
 
 criterion_group!(benches, bench);

@@ -14,6 +14,9 @@ fn a_subset_of_the_rules_sweep_meets_its_expectations() {
         "e-stuck-dempster-learned",
         "e-glare-dubois_prade",
         "e-salt-pepper-disjunctive",
+        "cont-clean-dempster-learned",
+        "cont-stuck-dempster-0.9",
+        "cont-glare-cautious",
     ];
     let runs = run_variants("rules.toml", Some(&names));
     assert_eq!(runs.len(), names.len());
@@ -25,12 +28,17 @@ fn a_subset_of_the_rules_sweep_meets_its_expectations() {
 
 /// Loads a scenario whose `[track]` ends with `track`; the error's text.
 fn scenario_error(track: &str) -> String {
+    section_error("evidential", "track", track)
+}
+
+/// Loads a scenario of `method` whose `[section]` ends with `body`; the error's text.
+fn section_error(method: &str, section: &str, body: &str) -> String {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("s.toml");
     let text = format!(
-        "name = \"s\"\nestimators = [\"evidential\"]\n[sample]\nmotion = {{ kind = \"mesh\", spacing = 1.0 }}\n\
+        "name = \"s\"\nestimators = [\"{method}\"]\n[sample]\nmotion = {{ kind = \"mesh\", spacing = 1.0 }}\n\
          [[tests]]\nkind = \"lissajous\"\nfreq_x = 0.3\nfreq_y = 0.2\nduration = 1.0\nfps = 10.0\n\
-         [model]\nstates = 24\n[features.barycentre]\nenabled = true\n[track]\n{track}\n"
+         [model]\nstates = 24\n[features.barycentre]\nenabled = true\n[{section}]\n{body}\n"
     );
     std::fs::write(&path, text).unwrap();
     match evitrack::scenario::ScenarioSet::load(&path) {
@@ -60,4 +68,38 @@ fn the_scenario_check_names_the_valid_rules_and_the_method_that_cannot_take_one(
     assert!(scenario_error("combine = \"all\"\nrule = \"murphy\"").is_empty());
     let dogmatic = scenario_error("rule = \"cautious\"");
     assert!(dogmatic.contains("dogmatic"), "{dogmatic}");
+}
+
+#[test]
+fn the_continuous_trackers_take_the_rules_for_consonant_contours_and_name_them() {
+    for method in ["continuous", "continuous_temporal"] {
+        for rule in [
+            "yager",
+            "pcr6",
+            "dubois_prade",
+            "disjunctive",
+            "murphy",
+            "conjunctive",
+        ] {
+            let refused = section_error(method, "continuous", &format!("rule = \"{rule}\""));
+            assert!(
+                refused.contains(rule)
+                    && refused.contains("dempster")
+                    && refused.contains("cautious"),
+                "{method}: {refused}"
+            );
+        }
+        for ok in [
+            "rule = \"cautious\"",
+            "combine = \"all\"\ndiscount = \"learned\"",
+            "discount = 0.5",
+        ] {
+            assert!(
+                section_error(method, "continuous", ok).is_empty(),
+                "{method} {ok}"
+            );
+        }
+        let vacuous = section_error(method, "continuous", "discount = 0.0");
+        assert!(vacuous.contains("continuous.discount"), "{vacuous}");
+    }
 }

@@ -11,7 +11,7 @@ use std::collections::HashMap;
 use super::grid_levels::GridCache;
 use super::Continuous;
 pub(super) use crate::track::members;
-use crate::track::{select_group, GroupLevels, GroupMask, Selection};
+use crate::track::{select_group, Combine, GroupLevels, GroupMask, Selection};
 
 /// Most Levenberg–Marquardt iterations per group.
 const MAX_ITERATIONS: usize = 40;
@@ -143,6 +143,19 @@ impl<'a> Frame<'a> {
             let Some(y) = self.values[i] else { continue };
             let s = self.model.file.residual_scales[i];
             let z = (y - f[i]) / s;
+            let a = self.model.fusion.reliability(i);
+            if a < 1.0 {
+                // Discounted: the residual √t of its χ² term (module `rules`).
+                let (t, slope) = super::rules::discounted_term(z, a);
+                let r = t.sqrt();
+                chi2 += t;
+                residuals.push(r);
+                if want_jacobian {
+                    let k = if r > 0.0 { slope / (2.0 * r) } else { a.sqrt() };
+                    jac_rows.push([-jac[i][0] / s * k, -jac[i][1] / s * k]);
+                }
+                continue;
+            }
             chi2 += z * z;
             residuals.push(z);
             if want_jacobian {
@@ -257,13 +270,25 @@ impl<'a> Frame<'a> {
         };
         let (lo, hi) = self.model.ranges[i];
         let gap = (lo - y).max(y - hi).max(0.0) / self.model.file.residual_scales[i];
+        let a = self.model.fusion.reliability(i);
+        if a < 1.0 {
+            return 0.5 * super::rules::discounted_term(gap, a).0;
+        }
         0.5 * gap * gap
     }
 
-    /// The paper's selection on this frame.
+    /// The paper's selection on this frame (every usable feature under `combine = "all"`).
     pub(super) fn select(&mut self) -> Selection {
         let (policy, threshold) = (self.model.file.settings.selection, self.model.threshold());
         let usable = self.usable_mask;
+        if self.model.file.settings.combine == Combine::All {
+            let level = self.grid_level(usable, f64::INFINITY).value;
+            return Selection {
+                chosen: Some((level, usable)),
+                alternatives: Vec::new(),
+                fallback: false,
+            };
+        }
         let features = self.values.len();
         select_group(self, features, usable, policy, threshold)
     }

@@ -30,7 +30,7 @@ use super::surrogate::GridView;
 use crate::track::{members, GroupMask};
 
 /// Nodes per side of a block.
-const BLOCK: usize = 8;
+pub(super) const BLOCK: usize = 8;
 /// Most groups whose kept nodes are held at once (beyond, the cache starts again).
 const MAX_KEPT: usize = 16_384;
 
@@ -39,7 +39,7 @@ const MAX_KEPT: usize = 16_384;
 #[derive(Debug, Clone)]
 pub(super) struct Blocks {
     /// Blocks per axis.
-    counts: [usize; 2],
+    pub(super) counts: [usize; 2],
     /// Block-major, one (lowest, highest) per feature.
     ranges: Vec<[f64; 2]>,
 }
@@ -97,24 +97,28 @@ pub(super) struct GridCache {
     kept: HashMap<GroupMask, Kept>,
     /// Each group's level and the limit it was computed with.
     levels: HashMap<GroupMask, (GridLevel, f64)>,
+    /// The same for the discounted levels of [`super::rules`].
+    pub(super) discounted: HashMap<GroupMask, (GridLevel, f64)>,
 }
 
 impl GridCache {
     pub(super) fn clear(&mut self) {
         self.kept.clear();
         self.levels.clear();
+        self.discounted.clear();
     }
 }
 
 /// The cut above `x` with room for rounding (bounds and sums add in different orders).
-fn with_slack(x: f64) -> f64 {
+pub(super) fn with_slack(x: f64) -> f64 {
     x * (1.0 + 1e-9) + 1e-9
 }
 
 impl Frame<'_> {
-    /// The level of `group` (usable features and perhaps the carried belief) with the threshold
-    /// `limit` (+∞: exact): exact when at most `limit`, else some value above it.
-    pub(super) fn grid_level(&mut self, group: GroupMask, limit: f64) -> GridLevel {
+    /// The level of `group` (usable features and perhaps the carried belief) under Dempster's
+    /// rule, undiscounted, with the threshold `limit` (+∞: exact): exact when at most `limit`,
+    /// else some value above it.
+    pub(super) fn sum_level(&mut self, group: GroupMask, limit: f64) -> GridLevel {
         if group == 0 {
             return GridLevel {
                 value: 0.0,
@@ -171,7 +175,7 @@ impl Frame<'_> {
     }
 
     /// The pose of node `n`.
-    fn node_pose(&self, n: usize) -> [f64; 2] {
+    pub(super) fn node_pose(&self, n: usize) -> [f64; 2] {
         let (origin, step, nodes, _) = self.model.surrogate.grid();
         let (c, r) = (n % nodes[0], n / nodes[0]);
         [
@@ -215,7 +219,7 @@ impl Frame<'_> {
     }
 
     /// Per block and feature, the lower bound of l_i over the block (0 for a missing value).
-    fn block_bounds(&mut self) -> &[f64] {
+    pub(super) fn block_bounds(&mut self) -> &[f64] {
         if self.grid.block_bounds.is_empty() {
             let blocks = &self.model.blocks;
             let d = self.values.len();

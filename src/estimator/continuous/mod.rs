@@ -28,6 +28,7 @@ mod file;
 mod frame;
 mod grid_levels;
 mod grid_share;
+mod rules;
 mod surrogate;
 mod temporal;
 
@@ -52,13 +53,13 @@ use super::samples::kept_samples;
 use super::{
     EstimateFlags, EstimatorError, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet,
 };
-use crate::evidence::ConflictLevel;
+use crate::evidence::{ConflictLevel, Rule};
 use crate::features::FeatureConfig;
 use crate::model::ModelError;
 use crate::model_file::{self, Provenance};
 use crate::planar::{bounding_box, distance};
 use crate::standardisation::Standardisation;
-use crate::track::{quantile_threshold, SelectionPolicy, ThresholdRule};
+use crate::track::{quantile_threshold, Combine, Discount, SelectionPolicy, ThresholdRule};
 use file::ContinuousFile;
 use frame::{members, Frame};
 use surrogate::{fit_hyperparameters, Surrogate};
@@ -88,6 +89,15 @@ pub struct ContinuousSettings {
     /// Spacing (mm) of the grid the feature maps are tabulated on and interpolated from (at
     /// most 1,000 nodes per axis).
     pub grid_spacing: f64,
+    /// Every usable feature, or the selected group (default); left out of files when default.
+    #[serde(skip_serializing_if = "rules::is_default")]
+    pub combine: Combine,
+    /// `dempster` (default) or `cautious` ([`rules`]: the rules that make sense for consonant contours).
+    #[serde(skip_serializing_if = "rules::is_default")]
+    pub rule: Rule,
+    /// Shafer's discounting of each feature before the rule: none, learned or a reliability.
+    #[serde(skip_serializing_if = "rules::is_default")]
+    pub discount: Discount,
 }
 
 impl Default for ContinuousSettings {
@@ -101,6 +111,9 @@ impl Default for ContinuousSettings {
             max_fit_samples: 200,
             iterations: 100,
             grid_spacing: 0.25,
+            combine: Combine::Selected,
+            rule: Rule::Dempster,
+            discount: Discount::None,
         }
     }
 }
@@ -146,7 +159,7 @@ impl ContinuousSettings {
                 field: "continuous.threshold_rule",
                 reason: e.to_string(),
             })?;
-        Ok(())
+        rules::check(self)
     }
 }
 
@@ -163,6 +176,8 @@ pub struct Continuous {
     bounds: ([f64; 2], [f64; 2]),
     /// Bounds of the maps over blocks of grid nodes, for the group levels.
     blocks: grid_levels::Blocks,
+    /// The rule and each feature's reliability.
+    fusion: rules::Fusion,
 }
 
 impl Continuous {
@@ -332,6 +347,7 @@ impl Continuous {
             .collect();
         let bounds = bounding_box(&file.sample_poses);
         let blocks = grid_levels::Blocks::new(surrogate.grid(), dim);
+        let fusion = rules::Fusion::new(&file, &surrogate);
         Self {
             file,
             surrogate,
@@ -339,6 +355,7 @@ impl Continuous {
             ranges,
             bounds,
             blocks,
+            fusion,
         }
     }
 
