@@ -11,6 +11,7 @@ use crate::model::{
     EvidentialModel, FeatureFrames, FeatureModel, ModelParts, ModelSettings, StateCountTuner,
     TunerError, Tuning,
 };
+use crate::model_file::Provenance;
 use crate::planar::distance;
 use crate::track::{
     FrameEstimate, GroupError, SelectionPolicy, ThresholdRule, TrackError, TrackSettings,
@@ -163,6 +164,13 @@ impl Evidential {
         Self::from_model(model)
     }
 
+    /// The same fitted tracker recording `provenance` (its fit does not depend on it).
+    pub(crate) fn reprovenanced(&self, provenance: &Provenance) -> Self {
+        let mut copy = self.clone();
+        copy.model = self.model.with_provenance(provenance.clone());
+        copy
+    }
+
     /// The estimator of a complete model (builds its tracker).
     ///
     /// # Errors
@@ -249,6 +257,10 @@ impl PoseEstimator for Evidential {
 
     fn to_json(&self) -> Result<String, EstimatorError> {
         Ok(self.model.to_json()?)
+    }
+
+    fn with_provenance(&self, provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
+        Some(Box::new(self.reprovenanced(provenance)))
     }
 }
 

@@ -291,9 +291,11 @@ pub trait PoseEstimator: Send + Sync + std::fmt::Debug + std::any::Any {
     }
 
     /// The same fitted estimator recording `provenance` instead, for methods whose fit does not
-    /// depend on it and is worth sharing between runs on identical training data (`gp` and
-    /// `continuous`, whose Gaussian processes take most of a sweep's time; see
-    /// [`crate::experiment::Workbench::fit`]); `None` for the others.
+    /// depend on it (beyond the training seed, which a temporal method's fit key holds) and is
+    /// worth sharing between runs on identical training data: every built-in method but k-NN
+    /// and the centre, whose fits cost nothing (the variants of a sweep that differ only in
+    /// their test motions or faults fit once; see [`crate::experiment::Workbench::fit`]);
+    /// `None` for the others.
     fn with_provenance(&self, _provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
         None
     }

@@ -130,7 +130,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
             let model = parse_at(path, text, crate::model::EvidentialModel::from_json)?;
             Ok(Box::new(Evidential::from_model(model)?))
         },
-        shared_fit: None,
+        shared_fit: Some(|s| Some(format!("{:?}", s.evidential))),
     },
     MethodEntry {
         name: TemporalEvidential::METHOD,
@@ -154,7 +154,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
                 TemporalEvidential::from_json,
             )?))
         },
-        shared_fit: None,
+        shared_fit: Some(|s| Some(format!("{:?} {:?}", s.evidential, s.temporal))),
     },
     MethodEntry {
         name: Continuous::METHOD,
@@ -190,7 +190,7 @@ pub static BUILT_IN: [MethodEntry; 8] = [
                 ContinuousTemporal::from_json,
             )?))
         },
-        shared_fit: None,
+        shared_fit: Some(|s| serde_json::to_string(&(&s.continuous, &s.temporal)).ok()),
     },
     MethodEntry {
         name: Knn::METHOD,
@@ -233,7 +233,9 @@ pub static BUILT_IN: [MethodEntry; 8] = [
             )?))
         },
         load: |path, text| Ok(Box::new(parse_at(path, text, ParticleFilter::from_json)?)),
-        shared_fit: None,
+        shared_fit: Some(|s| {
+            serde_json::to_string(&(&s.particle_filter, &s.temporal, &s.continuous)).ok()
+        }),
     },
     MethodEntry {
         name: Centre::METHOD,

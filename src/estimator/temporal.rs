@@ -263,6 +263,20 @@ impl PoseEstimator for TemporalEvidential {
             misses: Vec::new(),
         })
     }
+
+    fn with_provenance(
+        &self,
+        provenance: &crate::model_file::Provenance,
+    ) -> Option<Box<dyn PoseEstimator>> {
+        let inner = self.inner.reprovenanced(provenance);
+        let mut file = self.file.clone();
+        file.evidential_model = inner.to_json().ok()?;
+        Some(Box::new(Self {
+            inner,
+            file,
+            refinement: self.refinement.clone(),
+        }))
+    }
 }
 
 /// One motion under the temporal evidential tracker.

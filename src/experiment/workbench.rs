@@ -172,8 +172,9 @@ impl Workbench {
 }
 
 /// Everything a shared fit depends on, as bytes: the method, its settings and the confidence
-/// levels it is calibrated at, the features and the training and validation data bit for bit
-/// (not the provenance). `None` for methods that do not share fits.
+/// levels it is calibrated at, the features, the training, validation and calibration data and
+/// their times bit for bit, and for a temporal method the training seed (not the rest of the
+/// provenance). `None` for methods that do not share fits.
 fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> Option<Vec<u8>> {
     let method_settings = (method.entry().shared_fit?)(settings)?;
     let header = serde_json::json!({
@@ -184,6 +185,9 @@ fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> 
         "features": data.feature_names,
         "config": data.feature_config,
         "missing_penalty": data.missing_penalty.to_bits(),
+        // A temporal method's fit draws from the training seed (the particle filter's) and
+        // learns on the frames' times.
+        "seed": method.entry().over_time.then_some(data.provenance.seed),
     });
     let mut key = serde_json::to_vec(&header).ok()?;
     append_labelled(&mut key, &data.sample);
@@ -194,6 +198,18 @@ fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> 
     if let Some(calibration) = &data.calibration {
         key.push(b'C');
         append_labelled(&mut key, calibration);
+    }
+    for (tag, times) in [
+        (b'v', data.validation_times),
+        (b'c', data.calibration_times),
+    ] {
+        if let Some(times) = times {
+            key.push(tag);
+            key.extend((times.len() as u64).to_le_bytes());
+            times
+                .iter()
+                .for_each(|t| key.extend(t.to_bits().to_le_bytes()));
+        }
     }
     Some(key)
 }

@@ -266,6 +266,16 @@ impl EvidentialModel {
         &self.parts.provenance
     }
 
+    /// The same model recording `provenance` instead (a fit shared with another run).
+    pub fn with_provenance(&self, provenance: Provenance) -> Self {
+        Self {
+            parts: ModelParts {
+                provenance,
+                ..self.parts.clone()
+            },
+        }
+    }
+
     /// The same model with other tracker settings (checked).
     pub fn with_track_settings(&self, track: TrackSettings) -> Result<Self, ModelError> {
         Self::new(ModelParts {

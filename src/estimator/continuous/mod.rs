@@ -359,6 +359,13 @@ impl Continuous {
         }
     }
 
+    /// The same fitted maps recording `provenance` (their fit does not depend on it).
+    pub(crate) fn reprovenanced(&self, provenance: &Provenance) -> Self {
+        let mut copy = self.clone();
+        copy.file.header.provenance = provenance.clone();
+        copy
+    }
+
     /// The settings it was fitted with.
     pub fn settings(&self) -> &ContinuousSettings {
         &self.file.settings
@@ -545,9 +552,7 @@ impl PoseEstimator for Continuous {
     }
 
     fn with_provenance(&self, provenance: &Provenance) -> Option<Box<dyn PoseEstimator>> {
-        let mut copy = self.clone();
-        copy.file.header.provenance = provenance.clone();
-        Some(Box::new(copy))
+        Some(Box::new(self.reprovenanced(provenance)))
     }
 }
 

@@ -180,6 +180,16 @@ impl PoseEstimator for ContinuousTemporal {
             line: VelocityLine::new(self.file.settings.velocity_frames),
         })
     }
+
+    fn with_provenance(
+        &self,
+        provenance: &crate::model_file::Provenance,
+    ) -> Option<Box<dyn PoseEstimator>> {
+        let inner = self.inner.reprovenanced(provenance);
+        let mut file = self.file.clone();
+        file.continuous_model = inner.to_json().ok()?;
+        Some(Box::new(Self { inner, file }))
+    }
 }
 
 /// The last measured frame: its time, estimate and the spread of its belief (mm).

@@ -290,6 +290,18 @@ impl PoseEstimator for ParticleFilter {
     fn start_motion(&self) -> Box<dyn MotionTracker + '_> {
         Box::new(motion::FilterMotion::new(self))
     }
+
+    /// Shared only between runs of one seed (the fit key holds it): the filter's own seed is
+    /// derived from the training seed.
+    fn with_provenance(
+        &self,
+        provenance: &crate::model_file::Provenance,
+    ) -> Option<Box<dyn PoseEstimator>> {
+        let maps = self.maps.reprovenanced(provenance);
+        let mut file = self.file.clone();
+        file.feature_maps = maps.to_json().ok()?;
+        Some(Box::new(Self { maps, file }))
+    }
 }
 
 /// The scenario checks of the particle filter: its section, the `[temporal]` motion model and
