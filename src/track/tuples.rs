@@ -21,6 +21,12 @@ struct Tuples {
 #[derive(Default)]
 pub(super) struct TupleStack {
     chain: Vec<Tuples>,
+    /// Popped tuples whose buffers the next ones reuse.
+    spare: Vec<Tuples>,
+    /// Tuple numbers by (parent tuple, state), `u32::MAX` where unset between calls.
+    remap: Vec<u32>,
+    /// The largest cell value per tuple ([`TupleStack::agreement`]).
+    top: Vec<f64>,
 }
 
 impl TupleStack {
@@ -32,30 +38,13 @@ impl TupleStack {
         usable: &[Option<Usable>],
         group: GroupMask,
     ) -> Option<f64> {
-        // Keep the longest prefix of `group` already built.
-        let is_prefix = |p: GroupMask| {
-            let top = 63 - p.leading_zeros();
-            let below = if top == 63 {
-                GroupMask::MAX
-            } else {
-                (2 << top) - 1
-            };
-            group & below == p
-        };
-        while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
-            self.chain.pop();
-        }
         // Nothing to grow from (a maximum clique, before any walk): one direct computation is
         // cheaper than building every prefix.
+        self.keep_prefixes(group);
         if self.chain.is_empty() && group.count_ones() > 2 {
             return tracker.bayesian_group_level(group, usable);
         }
-        let mut built = self.chain.last().map_or(0, |t| t.group);
-        for i in members(group & !built) {
-            built |= 1 << i;
-            let next = self.extend(tracker, built, i, usable[i].as_ref()?);
-            self.chain.push(next);
-        }
+        self.grow(tracker, usable, group)?;
         let tuples = self.chain.last()?;
         if !tuples.positive.iter().any(|&p| p) {
             return Some(f64::INFINITY);
@@ -74,8 +63,78 @@ impl TupleStack {
         Some((-(s.ln() + log_scale)).max(0.0))
     }
 
+    /// Σ_t p(t)·max_t c / Σ_t p(t) over the state tuples t of `group` (one or more usable
+    /// features), p the product of the members' scaled contours and max_t c the largest
+    /// `cell_max` on t's cells: 1 − K(m_group, C) for a consonant C of that cell contour (the
+    /// contours' scales cancel). `None` when the sum underflows (the caller combines instead).
+    pub(super) fn agreement(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+        cell_max: &[f64],
+    ) -> Option<f64> {
+        self.grow(tracker, usable, group)?;
+        let tuples = self.chain.last()?;
+        let top = &mut self.top;
+        top.clear();
+        top.resize(tuples.product.len(), 0.0);
+        for (&t, &c) in tuples.id.iter().zip(cell_max) {
+            top[t as usize] = top[t as usize].max(c);
+        }
+        let (mut agree, mut total) = (0.0, 0.0);
+        for (&p, &c) in tuples.product.iter().zip(top.iter()) {
+            agree += p * c;
+            total += p;
+        }
+        if !tuples.positive.iter().any(|&p| p) {
+            return Some(0.0);
+        }
+        (total.is_finite() && total > 1e-280).then_some(agree / total)
+    }
+
+    /// Keeps the longest prefix of `group` already built.
+    fn keep_prefixes(&mut self, group: GroupMask) {
+        let is_prefix = |p: GroupMask| {
+            let top = 63 - p.leading_zeros();
+            let below = if top == 63 {
+                GroupMask::MAX
+            } else {
+                (2 << top) - 1
+            };
+            group & below == p
+        };
+        while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
+            self.spare.extend(self.chain.pop());
+        }
+    }
+
+    /// Builds the chain up to `group` from its longest prefix already built; `None` when a
+    /// member is not usable.
+    fn grow(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+    ) -> Option<()> {
+        self.keep_prefixes(group);
+        let mut built = self.chain.last().map_or(0, |t| t.group);
+        for i in members(group & !built) {
+            built |= 1 << i;
+            let next = self.extend(tracker, built, i, usable[i].as_ref()?);
+            self.chain.push(next);
+        }
+        Some(())
+    }
+
     /// The tuples of `group`: the last group of the chain (or none) with feature `i` added.
-    fn extend(&self, tracker: &Tracker, group: GroupMask, i: usize, feature: &Usable) -> Tuples {
+    fn extend(
+        &mut self,
+        tracker: &Tracker,
+        group: GroupMask,
+        i: usize,
+        feature: &Usable,
+    ) -> Tuples {
         let states = tracker.to_cells[i].assignment();
         let n = tracker.to_cells[i].coarse_size();
         let cells = states.len();
@@ -83,10 +142,28 @@ impl TupleStack {
             Some(t) => (Some(&t.id), t.product.len()),
             None => (None, 1),
         };
-        let mut remap = vec![u32::MAX; parent_count * n];
-        let mut id = Vec::with_capacity(cells);
-        let mut product = Vec::new();
-        let mut positive = Vec::new();
+        // Buffers from popped tuples and the scratch table (all u32::MAX between calls):
+        // a search's walk allocates nothing after its first groups.
+        let mut next = self.spare.pop().unwrap_or_else(|| Tuples {
+            group,
+            id: Vec::with_capacity(cells),
+            product: Vec::with_capacity(cells),
+            positive: Vec::with_capacity(cells),
+        });
+        next.group = group;
+        let Tuples {
+            id,
+            product,
+            positive,
+            ..
+        } = &mut next;
+        id.clear();
+        product.clear();
+        positive.clear();
+        let remap = &mut self.remap;
+        if remap.len() < parent_count * n {
+            remap.resize(parent_count * n, u32::MAX);
+        }
         for (u, &su) in states.iter().enumerate() {
             let p = parent_id.map_or(0, |ids| ids[u] as usize);
             let key = p * n + su;
@@ -102,11 +179,9 @@ impl TupleStack {
             }
             id.push(remap[key]);
         }
-        Tuples {
-            group,
-            id,
-            product,
-            positive,
+        for (u, &su) in states.iter().enumerate() {
+            remap[parent_id.map_or(0, |ids| ids[u] as usize) * n + su] = u32::MAX;
         }
+        next
     }
 }
