@@ -1,8 +1,9 @@
 //! Tracking over time (issue 17): one frame of a motion through `MotionTracker::next`, for the
 //! paper's tracker (per frame, for reference) and the three temporal methods, on 8 synthetic
 //! features of a 20 × 20 mesh (1 mm) with 24 states each, along a 200-frame Lissajous path at
-//! 20 frames per second; and building the sample poses' refinement (part of fitting or loading
-//! the temporal evidential tracker).
+//! 20 frames per second; the particle filter also with 20,000 particles (what a fair filter
+//! needs, issue 32); and loading the temporal evidential tracker's model file (which refines
+//! the sample poses).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::test_maps::{feature_row, workspace_mesh};
@@ -83,6 +84,21 @@ fn temporal(c: &mut Criterion) {
             });
         }
     }
+    settings.particle_filter.particles = 20_000;
+    let filter = Method::PARTICLE_FILTER.fit(&settings, &data).expect("fits");
+    group.bench_function("frame/particle_filter 20000", |b| {
+        let mut motion = filter.start_motion();
+        let mut k = 0;
+        b.iter(|| {
+            if k == frames.len() {
+                motion = filter.start_motion();
+                k = 0;
+            }
+            let (t, row) = &frames[k];
+            k += 1;
+            black_box(motion.next(*t, row).expect("tracks"))
+        });
+    });
     group.finish();
 }
 

@@ -31,7 +31,8 @@ use serde::{Deserialize, Serialize};
 
 use super::evidential::pose_estimate;
 use super::motion::{
-    learned_motion, motion_error, Refinement, TemporalSettings, VelocityLine, DEFAULT_RELIABILITY,
+    learned_motion, motion_error, PoseBuckets, Refinement, TemporalSettings, VelocityLine,
+    DEFAULT_RELIABILITY,
 };
 use super::{
     EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
@@ -67,6 +68,8 @@ pub struct TemporalEvidential {
     /// The sample poses refined for the velocity prediction (`None` without two distinct
     /// poses: the estimates stay on the samples' weights).
     refinement: Option<Refinement>,
+    /// The sample poses in buckets, for the dilation.
+    buckets: PoseBuckets,
 }
 
 /// The model file: the settings, the reliability and velocity line used and the paper
@@ -162,11 +165,14 @@ impl TemporalEvidential {
     }
 
     fn assemble(inner: Evidential, file: TemporalFile) -> Self {
-        let refinement = Refinement::new(inner.tracker().model().poses());
+        let poses = inner.tracker().model().poses();
+        let refinement = Refinement::new(poses);
+        let buckets = PoseBuckets::new(poses);
         Self {
             inner,
             file,
             refinement,
+            buckets,
         }
     }
 
@@ -349,7 +355,7 @@ impl MotionTracker for EvidentialMotion<'_> {
         let interval = (time - last).max(0.0);
         let reach = self.estimator.file.settings.max_speed * interval;
         let shift = self.line.shift(interval);
-        let moved = dilate(tracker.model().poses(), &contour, reach, shift);
+        let moved = self.estimator.buckets.dilate(&contour, reach, shift);
         let alpha = self.estimator.file.reliability;
         let carried: Vec<f64> = moved.iter().map(|&m| 1.0 - alpha + alpha * m).collect();
         let likelihoods = inner.model().frames().likelihoods(features)?;
@@ -408,27 +414,6 @@ fn scaled_to_max(contour: &[f64]) -> Option<Vec<f64>> {
     (max > 0.0 && max.is_finite()).then(|| contour.iter().map(|c| c / max).collect())
 }
 
-/// π′(p) = max {π(q) : |q + shift − p| ≤ reach} over the poses: each pose moved by `shift` and
-/// spread over `reach`.
-fn dilate(poses: &[[f64; 2]], contour: &[f64], reach: f64, shift: [f64; 2]) -> Vec<f64> {
-    if reach <= 0.0 && shift == [0.0; 2] {
-        return contour.to_vec();
-    }
-    let r2 = reach * reach;
-    poses
-        .iter()
-        .map(|p| {
-            let target = [p[0] - shift[0], p[1] - shift[1]];
-            poses
-                .iter()
-                .zip(contour)
-                .filter(|(q, _)| (q[0] - target[0]).powi(2) + (q[1] - target[1]).powi(2) <= r2)
-                .map(|(_, &c)| c)
-                .fold(0.0f64, f64::max)
-        })
-        .collect()
-}
-
 /// The scenario checks of the temporal evidential tracker: the `[temporal]` section, no
 /// splitting, and the HMM frames' limits.
 pub(crate) fn check_settings(
@@ -459,28 +444,6 @@ mod tests {
         assert_eq!(too_many_features(63), None);
         let why = too_many_features(64).unwrap();
         assert!(why.contains("at most 63"), "{why}");
-    }
-
-    #[test]
-    fn dilation_spreads_each_value_over_its_reach() {
-        let poses = [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.5, 0.0]];
-        let contour = [0.0, 1.0, 0.2, 0.0];
-        let still = [0.0; 2];
-        assert_eq!(dilate(&poses, &contour, 0.0, still), contour.to_vec());
-        assert_eq!(
-            dilate(&poses, &contour, 1.5, still),
-            vec![1.0, 1.0, 1.0, 0.2]
-        );
-        assert_eq!(
-            dilate(&poses, &contour, 1.4, still),
-            vec![1.0, 1.0, 1.0, 0.0]
-        );
-        assert_eq!(dilate(&poses, &contour, 10.0, still), vec![1.0; 4]);
-        // Moved by +1 first: pose 1's value lands on pose 2, pose 2's at 3 (reach 0.5 of 3.5).
-        assert_eq!(
-            dilate(&poses, &contour, 0.6, [1.0, 0.0]),
-            vec![0.0, 0.0, 1.0, 0.2]
-        );
     }
 
     #[test]

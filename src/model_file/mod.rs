@@ -231,6 +231,22 @@ fn parse_checked<T: DeserializeOwned>(
     version: u32,
     refuse_nulls: bool,
 ) -> Result<T, ModelFileError> {
+    match probe_stamp(text) {
+        Some(stamp) => {
+            check_stamp(&stamp, method, version)?;
+            serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))
+        }
+        None => parse_document(text, method, version, refuse_nulls),
+    }
+}
+
+/// [`parse_checked`] through the whole document: the stamp, then the nulls, then the types.
+fn parse_document<T: DeserializeOwned>(
+    text: &str,
+    method: &'static str,
+    version: u32,
+    refuse_nulls: bool,
+) -> Result<T, ModelFileError> {
     let value: serde_json::Value =
         serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))?;
     check_stamp(&value, method, version)?;
@@ -247,6 +263,35 @@ fn parse_checked<T: DeserializeOwned>(
     }
     // Parsed again from the text so that errors carry line and column.
     serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))
+}
+
+/// The two stamp fields of a file.
+#[derive(Deserialize)]
+struct StampProbe {
+    method: Option<serde_json::Value>,
+    format_version: Option<serde_json::Value>,
+}
+
+/// The stamp fields of `text` as an object, read without building the rest of the file (a
+/// model file's document would cost more than its typed parse), when the full path could not
+/// decide otherwise: an object without `null` anywhere (so there is none to refuse and the
+/// fields are present or absent, never null) that the probe reads. Otherwise `None`, and
+/// [`parse_checked`] reads the document, so every error is reported as it always was.
+fn probe_stamp(text: &str) -> Option<serde_json::Value> {
+    if !text.trim_start().starts_with('{') || text.contains("null") {
+        return None;
+    }
+    let probe: StampProbe = serde_json::from_str(text).ok()?;
+    let mut stamp = serde_json::Map::new();
+    for (key, value) in [
+        ("method", probe.method),
+        ("format_version", probe.format_version),
+    ] {
+        if let Some(value) = value {
+            stamp.insert(key.to_string(), value);
+        }
+    }
+    Some(serde_json::Value::Object(stamp))
 }
 
 /// The path of the first `null` in `value`.
@@ -331,5 +376,51 @@ pub fn check_finite(field: &str, values: &[f64]) -> Result<(), ModelFileError> {
     match values.iter().position(|v| !v.is_finite()) {
         Some(i) => Err(corrupted(format!("`{field}[{i}]` is not finite"))),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, PartialEq, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct File {
+        format_version: u32,
+        method: String,
+        value: f64,
+    }
+
+    #[test]
+    fn the_stamp_probe_decides_as_the_whole_document() {
+        let texts = [
+            r#"{"format_version": 3, "method": "m", "value": 1.5}"#,
+            r#"  {"method": "m", "value": 1.5, "format_version": 3}"#,
+            r#"{"format_version": 3, "method": "other", "value": 1.5}"#,
+            r#"{"method": "m", "value": 1.5}"#,
+            r#"{"format_version": "3", "method": "m", "value": 1.5}"#,
+            r#"{"format_version": 4, "method": "m", "value": 1.5}"#,
+            r#"{"format_version": 3, "value": 1.5}"#,
+            r#"{"format_version": 3, "method": 7, "value": 1.5}"#,
+            r#"{"format_version": 3, "method": "m", "value": "x"}"#,
+            r#"{"format_version": 3, "method": "m", "value": 1.5, "extra": [1, {"a": 2}]}"#,
+            r#"{"format_version": 3, "method": "m", "value": 1."#,
+            r#"{"format_version": 3, "method": "m", "method": "m", "value": 1.5}"#,
+            r#"{"format_version": 3, "method": "m", "value": null}"#,
+            r#"[3, "m"]"#,
+            "",
+        ];
+        let mut probed = 0;
+        for text in texts {
+            probed += usize::from(probe_stamp(text).is_some());
+            for refuse in [true, false] {
+                let fast = parse_checked::<File>(text, "m", 3, refuse).map_err(|e| e.to_string());
+                let whole = parse_document::<File>(text, "m", 3, refuse).map_err(|e| e.to_string());
+                assert_eq!(fast, whole, "{text}");
+            }
+        }
+        // The well-formed objects without null took the probe.
+        assert!(probed >= 9, "{probed}");
+        assert!(parse::<File>(texts[0], "m", 3).is_ok());
     }
 }

@@ -70,6 +70,20 @@ impl CellLevels<'_> {
     }
 }
 
+impl CellLevels<'_> {
+    /// 1 − K(m_group, C) for the consonant C whose contour has maximum `cell_max` on each cell,
+    /// by the Bayesian tuple sums; `None` for consonant functions or on underflow (the caller
+    /// combines on the cells instead).
+    pub(super) fn bayesian_agreement(&mut self, group: GroupMask, cell_max: &[f64]) -> Option<f64> {
+        match self.tracker.settings.constructor {
+            Constructor::Bayesian => {
+                (self.tuples).agreement(self.tracker, self.usable, group, cell_max)
+            }
+            Constructor::Consonant => None,
+        }
+    }
+}
+
 impl Tracker {
     /// The selection's view of a frame's usable features.
     pub(super) fn cell_levels<'a>(&'a self, usable: &'a [Option<Usable>]) -> CellLevels<'a> {

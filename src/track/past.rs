@@ -46,26 +46,38 @@ impl PastLevels<'_> {
         if let Some(&level) = self.memo.get(&group) {
             return level;
         }
+        // Bayesian functions: sums over the state tuples (exact, as the combination's, up to
+        // the order of the additions); otherwise Dempster's rule on the cells.
+        let agree = self
+            .cells
+            .bayesian_agreement(group, &self.cell_max)
+            .or_else(|| self.combined_agreement(group));
+        let level = match agree {
+            Some(agree) if agree > 0.0 => (-agree.ln()).max(0.0),
+            _ => f64::INFINITY,
+        };
+        self.memo.insert(group, level);
+        level
+    }
+}
+
+impl PastLevels<'_> {
+    /// Σ_F m(F)·max_F c for the combination m of `group` on the cells; `None` when the group
+    /// does not combine.
+    fn combined_agreement(&self, group: GroupMask) -> Option<f64> {
         let (tracker, usable) = (self.cells.tracker, self.cells.usable);
         let combined = tracker
             .on_cells(group, usable)
             .and_then(|fs| dempster_all(&fs).ok())
-            .and_then(|c| c.mass);
-        let level = combined.map_or(f64::INFINITY, |m| {
-            let agree: f64 = m
+            .and_then(|c| c.mass)?;
+        Some(
+            combined
                 .focal()
                 .map(|(set, mass)| {
                     mass * set.iter().map(|u| self.cell_max[u]).fold(0.0f64, f64::max)
                 })
-                .sum();
-            if agree > 0.0 {
-                (-agree.ln()).max(0.0)
-            } else {
-                f64::INFINITY
-            }
-        });
-        self.memo.insert(group, level);
-        level
+                .sum(),
+        )
     }
 }
 
@@ -386,6 +398,49 @@ mod tests {
         for (k, w) in with.frame.plausibility.iter().enumerate() {
             assert!((w - pl[k] * carried[k] / total).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn the_tuple_sums_give_the_combinations_agreement_with_the_past() {
+        use super::PastLevels;
+        use rand::{Rng, SeedableRng};
+        let tracker = tiny_tracker(Constructor::Bayesian);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for round in 0..50 {
+            // Some states impossible now and then, a past from sharp to vacuous.
+            let mut draw = |n: usize| -> Option<Vec<f64>> {
+                Some((0..n).map(|_| rng.random::<f64>().powi(3)).collect())
+            };
+            let lik = vec![draw(2), draw(3), draw(2)];
+            let carried: Vec<f64> = (0..6).map(|_| rng.random::<f64>().powi(2)).collect();
+            let (usable, _) = tracker.measure(&lik).unwrap();
+            let mut cell_max = vec![0.0f64; tracker.cell_count()];
+            for (&u, &c) in tracker.cell_of.iter().zip(&carried) {
+                cell_max[u] = cell_max[u].max(c);
+            }
+            let mut levels = PastLevels {
+                cells: tracker.cell_levels(&usable),
+                past: 3,
+                cell_max: cell_max.clone(),
+                memo: std::collections::HashMap::new(),
+            };
+            for group in 1..8u64 {
+                let fast = levels.cells.bayesian_agreement(group, &cell_max).unwrap();
+                let combined = levels.combined_agreement(group).unwrap_or(0.0);
+                assert!(
+                    (fast - combined).abs() <= 1e-14 * combined.max(1e-300),
+                    "round {round}, group {group}: {fast} vs {combined}"
+                );
+            }
+        }
+        // Consonant functions take the combination.
+        let tracker = tiny_tracker(Constructor::Consonant);
+        let (usable, _) = tracker.measure(&frame()).unwrap();
+        let mut cells = tracker.cell_levels(&usable);
+        assert_eq!(
+            cells.bayesian_agreement(0b11, &vec![1.0; tracker.cell_count()]),
+            None
+        );
     }
 
     #[test]

@@ -25,10 +25,14 @@ struct Tuples {
 #[derive(Default)]
 pub(super) struct TupleStack {
     chain: Vec<Tuples>,
+    /// Popped tuples whose buffers the next ones reuse.
     spare: Vec<Tuples>,
+    /// Tuple numbers by (parent tuple, state) while a group is numbered (`u32::MAX`: none yet).
     remap: Vec<u32>,
     /// Parent tuple and state of each new tuple, in order of first occurrence.
     firsts: Vec<(u32, u32)>,
+    /// The largest cell value per tuple ([`TupleStack::agreement`]).
+    top: Vec<f64>,
 }
 
 impl TupleStack {
@@ -40,30 +44,13 @@ impl TupleStack {
         usable: &[Option<Usable>],
         group: GroupMask,
     ) -> Option<f64> {
-        // Keep the longest prefix of `group` already built.
-        let is_prefix = |p: GroupMask| {
-            let top = 63 - p.leading_zeros();
-            let below = if top == 63 {
-                GroupMask::MAX
-            } else {
-                (2 << top) - 1
-            };
-            group & below == p
-        };
-        while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
-            self.spare.extend(self.chain.pop());
-        }
+        self.keep_prefixes(group);
         // Nothing to grow from and a large group (a maximum clique, before any walk): one
         // direct computation is cheaper than building every prefix.
         if self.chain.is_empty() && group.count_ones() > 4 {
             return tracker.bayesian_group_level(group, usable);
         }
-        let mut built = self.chain.last().map_or(0, |t| t.group);
-        for i in members(group & !built) {
-            built |= 1 << i;
-            let next = self.extend(tracker, built, i, usable[i].as_ref()?);
-            self.chain.push(next);
-        }
+        self.grow(tracker, usable, group)?;
         let tuples = self.chain.last()?;
         if !tuples.positive.iter().any(|&p| p) {
             return Some(f64::INFINITY);
@@ -76,6 +63,70 @@ impl TupleStack {
             return None;
         }
         Some((-(s.ln() + tuples.log_scale)).max(0.0))
+    }
+
+    /// Σ_t p(t)·max_t c / Σ_t p(t) over the state tuples t of `group` (one or more usable
+    /// features), p the product of the members' scaled contours and max_t c the largest
+    /// `cell_max` on t's cells: 1 − K(m_group, C) for a consonant C of that cell contour (the
+    /// contours' scales cancel). `None` when the sum underflows (the caller combines instead).
+    pub(super) fn agreement(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+        cell_max: &[f64],
+    ) -> Option<f64> {
+        self.grow(tracker, usable, group)?;
+        let tuples = self.chain.last()?;
+        let top = &mut self.top;
+        top.clear();
+        top.resize(tuples.product.len(), 0.0);
+        for (&t, &c) in tuples.id.iter().zip(cell_max) {
+            top[t as usize] = top[t as usize].max(c);
+        }
+        let (mut agree, mut total) = (0.0, 0.0);
+        for (&p, &c) in tuples.product.iter().zip(top.iter()) {
+            agree += p * c;
+            total += p;
+        }
+        if !tuples.positive.iter().any(|&p| p) {
+            return Some(0.0);
+        }
+        (total.is_finite() && total > 1e-280).then_some(agree / total)
+    }
+
+    /// Keeps the longest prefix of `group` already built.
+    fn keep_prefixes(&mut self, group: GroupMask) {
+        let is_prefix = |p: GroupMask| {
+            let top = 63 - p.leading_zeros();
+            let below = if top == 63 {
+                GroupMask::MAX
+            } else {
+                (2 << top) - 1
+            };
+            group & below == p
+        };
+        while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
+            self.spare.extend(self.chain.pop());
+        }
+    }
+
+    /// Builds the chain up to `group` from its longest prefix already built; `None` when a
+    /// member is not usable.
+    fn grow(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+    ) -> Option<()> {
+        self.keep_prefixes(group);
+        let mut built = self.chain.last().map_or(0, |t| t.group);
+        for i in members(group & !built) {
+            built |= 1 << i;
+            let next = self.extend(tracker, built, i, usable[i].as_ref()?);
+            self.chain.push(next);
+        }
+        Some(())
     }
 
     /// The tuples of `group`: the last group of the chain (or none) with feature `i` added.

@@ -3,8 +3,11 @@
 //! onto a sub-grid ([`Refinement`]), and learning the carried belief's reliability α on the
 //! validation motion. The temporal methods use it; none imports another.
 
+mod dilate;
 mod refine;
 mod velocity;
+
+pub use dilate::PoseBuckets;
 
 pub use refine::Refinement;
 pub(crate) use refine::{MAX_POINTS as REFINE_MAX_POINTS, SUBDIVISIONS as REFINE_SUBDIVISIONS};

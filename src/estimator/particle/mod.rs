@@ -243,23 +243,38 @@ impl ParticleFilter {
         Ok(model_file::load(path, Self::from_json)?)
     }
 
-    /// log p(features | q) with the frame's usable `values`.
-    fn log_likelihood(&self, values: &[Option<f64>], q: [f64; 2], mapped: &mut [f64]) -> f64 {
-        self.maps.feature_map_into(q, mapped);
-        let ranges = self.maps.feature_ranges();
-        let scales = self.maps.residual_scales();
+    /// Per feature, σ·√(2π) and ε/W: the constants of [`ParticleFilter::log_likelihood`].
+    fn likelihood_constants(&self) -> (Vec<f64>, Vec<f64>) {
         let eps = self.file.outlier_share;
+        let norms = (self.maps.residual_scales().iter())
+            .map(|sigma| sigma * (2.0 * std::f64::consts::PI).sqrt())
+            .collect();
+        let uniforms = (self.maps.feature_ranges().iter())
+            .map(|r| eps / (r.1 - r.0).max(f64::MIN_POSITIVE))
+            .collect();
+        (norms, uniforms)
+    }
+
+    /// log p(features | q) with the frame's usable `values`; `constants` from
+    /// [`ParticleFilter::likelihood_constants`].
+    fn log_likelihood(
+        &self,
+        values: &[Option<f64>],
+        q: [f64; 2],
+        mapped: &mut [f64],
+        (norms, uniforms): (&[f64], &[f64]),
+    ) -> f64 {
+        self.maps.feature_map_into(q, mapped);
+        let scales = self.maps.residual_scales();
+        let keep = 1.0 - self.file.outlier_share;
         let mut total = 0.0;
         for (i, v) in values.iter().enumerate() {
             let (Some(v), sigma) = (v, scales[i]) else {
                 continue;
             };
-            let width = (ranges[i].1 - ranges[i].0).max(f64::MIN_POSITIVE);
             let z = (v - mapped[i]) / sigma;
-            let gaussian = (-0.5 * z * z).exp() / (sigma * (2.0 * std::f64::consts::PI).sqrt());
-            total += ((1.0 - eps) * gaussian + eps / width)
-                .max(f64::MIN_POSITIVE)
-                .ln();
+            let gaussian = (-0.5 * z * z).exp() / norms[i];
+            total += (keep * gaussian + uniforms[i]).max(f64::MIN_POSITIVE).ln();
         }
         total
     }
@@ -321,6 +336,51 @@ pub(crate) fn check_settings(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_likelihood_with_its_constants_is_the_direct_formula_bit_for_bit() {
+        let maps = crate::estimator::test_maps::fitted_continuous(4, 8, 20, 0.01, false, 2);
+        let settings = ParticleSettings {
+            outlier_share: Some(0.05),
+            ..ParticleSettings::default()
+        };
+        let filter =
+            ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps, 1).unwrap();
+        let (norms, uniforms) = filter.likelihood_constants();
+        let mut mapped = vec![0.0; 4];
+        // The formula as written before the constants were taken out of the particle loop.
+        let direct = |values: &[Option<f64>], q: [f64; 2]| {
+            let mapped = filter.maps.feature_map(q);
+            let (ranges, scales) = (filter.maps.feature_ranges(), filter.maps.residual_scales());
+            let eps = filter.file.outlier_share;
+            let mut total = 0.0;
+            for (i, v) in values.iter().enumerate() {
+                let Some(v) = v else { continue };
+                let (sigma, width) = (
+                    scales[i],
+                    (ranges[i].1 - ranges[i].0).max(f64::MIN_POSITIVE),
+                );
+                let z = (v - mapped[i]) / sigma;
+                let gaussian = (-0.5 * z * z).exp() / (sigma * (2.0 * std::f64::consts::PI).sqrt());
+                total += ((1.0 - eps) * gaussian + eps / width)
+                    .max(f64::MIN_POSITIVE)
+                    .ln();
+            }
+            total
+        };
+        for k in 0..50 {
+            let q = [-9.0 + 0.37 * k as f64, 40.0 + 0.29 * k as f64];
+            let mut values: Vec<Option<f64>> = filter
+                .maps
+                .feature_map([q[1] - 47.0, q[0] + 47.0])
+                .into_iter()
+                .map(Some)
+                .collect();
+            values[k % 4] = None;
+            let fast = filter.log_likelihood(&values, q, &mut mapped, (&norms, &uniforms));
+            assert_eq!(fast.to_bits(), direct(&values, q).to_bits(), "pose {q:?}");
+        }
+    }
 
     #[test]
     fn settings_are_checked() {

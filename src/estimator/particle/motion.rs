@@ -20,6 +20,16 @@ pub(super) struct FilterMotion<'a> {
     last: Option<f64>,
     /// The line through the last measured estimates.
     line: VelocityLine,
+    /// Per feature: σ·√(2π) and ε/W, the likelihood's constants.
+    norms: Vec<f64>,
+    uniforms: Vec<f64>,
+    /// Scratch kept between frames, so that a frame allocates nothing per particle: the mapped
+    /// features of one particle, each particle's log-likelihood, (distance, weight) pairs and
+    /// the resampled particles.
+    mapped: Vec<f64>,
+    logs: Vec<f64>,
+    by_distance: Vec<(f64, f64)>,
+    resampled: Vec<[f64; 2]>,
 }
 
 impl<'a> FilterMotion<'a> {
@@ -36,6 +46,7 @@ impl<'a> FilterMotion<'a> {
                 ]
             })
             .collect();
+        let (norms, uniforms) = filter.likelihood_constants();
         Self {
             filter,
             rng,
@@ -43,6 +54,12 @@ impl<'a> FilterMotion<'a> {
             weights: vec![1.0 / n as f64; n],
             last: None,
             line: VelocityLine::new(filter.file.velocity_frames),
+            mapped: vec![0.0; norms.len()],
+            norms,
+            uniforms,
+            logs: Vec::with_capacity(n),
+            by_distance: Vec::with_capacity(n),
+            resampled: Vec::with_capacity(n),
         }
     }
 
@@ -72,19 +89,23 @@ impl<'a> FilterMotion<'a> {
     /// Weights by the frame's likelihood; −ln of the predictive likelihood (the detection
     /// score), or `None` when every particle's likelihood underflows (the weights then stay).
     fn update(&mut self, values: &[Option<f64>]) -> Option<f64> {
-        let dim = self.filter.maps.feature_names().len();
-        let mut mapped = vec![0.0; dim];
-        let logs: Vec<f64> = self
-            .particles
-            .iter()
-            .map(|&q| self.filter.log_likelihood(values, q, &mut mapped))
-            .collect();
+        self.logs.clear();
+        for &q in &self.particles {
+            let l = self.filter.log_likelihood(
+                values,
+                q,
+                &mut self.mapped,
+                (&self.norms, &self.uniforms),
+            );
+            self.logs.push(l);
+        }
+        let logs = &self.logs;
         let max = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         if !max.is_finite() {
             return None;
         }
         let mut total = 0.0;
-        for (w, l) in self.weights.iter_mut().zip(&logs) {
+        for (w, l) in self.weights.iter_mut().zip(logs) {
             *w *= (l - max).exp();
             total += *w;
         }
@@ -105,35 +126,35 @@ impl<'a> FilterMotion<'a> {
         let mut u = self.rng.random::<f64>() * step;
         let mut cumulative = self.weights[0];
         let mut i = 0;
-        let mut resampled = Vec::with_capacity(n);
+        self.resampled.clear();
         for _ in 0..n {
             while u > cumulative && i + 1 < n {
                 i += 1;
                 cumulative += self.weights[i];
             }
-            resampled.push(self.particles[i]);
+            self.resampled.push(self.particles[i]);
             u += step;
         }
-        self.particles = resampled;
-        self.weights = vec![step; n];
+        std::mem::swap(&mut self.particles, &mut self.resampled);
+        self.weights.fill(step);
     }
 
     /// Weighted mean and the radius holding 90 % of the weight.
-    fn estimate(&self) -> ([f64; 2], f64) {
+    fn estimate(&mut self) -> ([f64; 2], f64) {
         let mut mean = [0.0; 2];
         for (p, w) in self.particles.iter().zip(&self.weights) {
             mean[0] += w * p[0];
             mean[1] += w * p[1];
         }
-        let mut by_distance: Vec<(f64, f64)> = self
-            .particles
-            .iter()
-            .zip(&self.weights)
-            .map(|(p, &w)| ((p[0] - mean[0]).hypot(p[1] - mean[1]), w))
-            .collect();
-        by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+        self.by_distance.clear();
+        self.by_distance.extend(
+            (self.particles.iter().zip(&self.weights))
+                .map(|(p, &w)| ((p[0] - mean[0]).hypot(p[1] - mean[1]), w)),
+        );
+        self.by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut held = 0.0;
-        let radius = by_distance
+        let radius = self
+            .by_distance
             .iter()
             .find(|(_, w)| {
                 held += w;

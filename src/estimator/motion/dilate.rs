@@ -1,0 +1,255 @@
+//! The carried contour's dilation (the temporal evidential tracker's motion model): π′(p) =
+//! max {π(q) : |q + shift − p| ≤ reach} over the sample poses, with the poses in square buckets
+//! so that each pose looks only at the buckets its disc overlaps. A max does not depend on the
+//! order it is taken in and every distance is computed as by the direct scan, so the result is
+//! bit-identical to it.
+
+/// The sample poses in square buckets of a fixed side.
+#[derive(Debug, Clone)]
+pub struct PoseBuckets {
+    poses: Vec<[f64; 2]>,
+    origin: [f64; 2],
+    side: f64,
+    size: [usize; 2],
+    /// Bucket b holds `members[start[b]..start[b + 1]]` (pose indices, ascending).
+    start: Vec<usize>,
+    members: Vec<u32>,
+    /// The members' coordinates, in bucket order.
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+}
+
+/// About this many poses per bucket.
+const POSES_PER_BUCKET: f64 = 4.0;
+
+/// At most this many buckets per axis.
+const MAX_BUCKETS: usize = 1024;
+
+impl PoseBuckets {
+    /// Buckets for `poses` (finite or not: a pose that is not finite goes to bucket 0 and is
+    /// compared as by the direct scan).
+    pub fn new(poses: &[[f64; 2]]) -> Self {
+        let finite = || {
+            poses
+                .iter()
+                .filter(|p| p[0].is_finite() && p[1].is_finite())
+        };
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in finite() {
+            for d in 0..2 {
+                lo[d] = lo[d].min(p[d]);
+                hi[d] = hi[d].max(p[d]);
+            }
+        }
+        if lo[0] > hi[0] {
+            (lo, hi) = ([0.0; 2], [0.0; 2]);
+        }
+        let area = ((hi[0] - lo[0]) * (hi[1] - lo[1])).max(0.0);
+        let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+        let mut side = (area * POSES_PER_BUCKET / poses.len().max(1) as f64).sqrt();
+        side = side.max(extent / MAX_BUCKETS as f64);
+        if !(side.is_finite() && side > 0.0) {
+            side = extent.max(1.0);
+        }
+        let count = |d: usize| (((hi[d] - lo[d]) / side) as usize + 1).min(MAX_BUCKETS);
+        let size = [count(0), count(1)];
+        let mut buckets = Self {
+            poses: poses.to_vec(),
+            origin: lo,
+            side,
+            size,
+            start: vec![0; size[0] * size[1] + 1],
+            members: vec![0; poses.len()],
+            xs: Vec::new(),
+            ys: Vec::new(),
+        };
+        let of: Vec<usize> = poses.iter().map(|p| buckets.bucket_of(*p)).collect();
+        for &b in &of {
+            buckets.start[b + 1] += 1;
+        }
+        for b in 0..size[0] * size[1] {
+            buckets.start[b + 1] += buckets.start[b];
+        }
+        let mut next = buckets.start.clone();
+        for (k, &b) in of.iter().enumerate() {
+            buckets.members[next[b]] = k as u32;
+            next[b] += 1;
+        }
+        let at = |d: usize| {
+            buckets
+                .members
+                .iter()
+                .map(|&k| poses[k as usize][d])
+                .collect()
+        };
+        (buckets.xs, buckets.ys) = (at(0), at(1));
+        buckets
+    }
+
+    /// The bucket of a pose (clamped to the grid; bucket 0 for a pose that is not finite).
+    fn bucket_of(&self, p: [f64; 2]) -> usize {
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            return 0;
+        }
+        let [i, j] = [0, 1].map(|d| self.index(d, p[d]));
+        j * self.size[0] + i
+    }
+
+    /// The bucket index of coordinate `x` along axis `d`, clamped to the grid.
+    fn index(&self, d: usize, x: f64) -> usize {
+        let k = ((x - self.origin[d]) / self.side).floor();
+        if k.is_nan() || k <= 0.0 {
+            0
+        } else {
+            (k as usize).min(self.size[d] - 1)
+        }
+    }
+
+    /// π′ over the poses: each pose's value of `contour` moved by `shift` and spread over
+    /// `reach` (the direct scan's result, bit for bit).
+    pub fn dilate(&self, contour: &[f64], reach: f64, shift: [f64; 2]) -> Vec<f64> {
+        if reach <= 0.0 && shift == [0.0; 2] {
+            return contour.to_vec();
+        }
+        let r2 = reach * reach;
+        let within =
+            |q: &[f64; 2], t: [f64; 2]| (q[0] - t[0]).powi(2) + (q[1] - t[1]).powi(2) <= r2;
+        // The contour in bucket order, each bucket's largest value, and the poses' coordinates
+        // in that order: each bucket's scan reads contiguous memory.
+        let values: Vec<f64> = (self.members.iter())
+            .map(|&k| contour.get(k as usize).copied().unwrap_or(0.0))
+            .collect();
+        let top: Vec<f64> = (0..self.size[0] * self.size[1])
+            .map(|b| {
+                values[self.start[b]..self.start[b + 1]]
+                    .iter()
+                    .fold(f64::NEG_INFINITY, |a, &c| a.max(c))
+            })
+            .collect();
+        let (xs, ys) = (&self.xs, &self.ys);
+        let exotic = !(r2.is_finite())
+            || self
+                .poses
+                .iter()
+                .any(|p| !(p[0].is_finite() && p[1].is_finite()));
+        self.poses
+            .iter()
+            .map(|p| {
+                let target = [p[0] - shift[0], p[1] - shift[1]];
+                if exotic || !(target[0].is_finite() && target[1].is_finite()) {
+                    // Not finite anywhere: the direct scan.
+                    return (self.poses.iter().zip(contour))
+                        .filter(|(q, _)| within(q, target))
+                        .map(|(_, &c)| c)
+                        .fold(0.0f64, f64::max);
+                }
+                // One bucket beyond the disc's box on each side absorbs any rounding of the
+                // bucket indices.
+                let [(i0, i1), (j0, j1)] = [0, 1].map(|d| {
+                    let r = reach.abs();
+                    let (a, b) = (self.index(d, target[d] - r), self.index(d, target[d] + r));
+                    (a.saturating_sub(1), (b + 1).min(self.size[d] - 1))
+                });
+                let mut best = 0.0f64;
+                for j in j0..=j1 {
+                    let row = j * self.size[0];
+                    let buckets = top.iter().enumerate().take(row + i1 + 1).skip(row + i0);
+                    for (b, &largest) in buckets {
+                        // A bucket whose largest value is no larger cannot change the max.
+                        if largest <= best {
+                            continue;
+                        }
+                        for k in self.start[b]..self.start[b + 1] {
+                            let q = [xs[k], ys[k]];
+                            if within(&q, target) {
+                                best = best.max(values[k]);
+                            }
+                        }
+                    }
+                }
+                best
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The definition: every pair.
+    fn direct(poses: &[[f64; 2]], contour: &[f64], reach: f64, shift: [f64; 2]) -> Vec<f64> {
+        if reach <= 0.0 && shift == [0.0; 2] {
+            return contour.to_vec();
+        }
+        let r2 = reach * reach;
+        poses
+            .iter()
+            .map(|p| {
+                let t = [p[0] - shift[0], p[1] - shift[1]];
+                (poses.iter().zip(contour))
+                    .filter(|(q, _)| (q[0] - t[0]).powi(2) + (q[1] - t[1]).powi(2) <= r2)
+                    .map(|(_, &c)| c)
+                    .fold(0.0f64, f64::max)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn dilation_spreads_each_value_over_its_reach() {
+        let poses = [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.5, 0.0]];
+        let contour = [0.0, 1.0, 0.2, 0.0];
+        let still = [0.0; 2];
+        let dilate = |_: &[[f64; 2]], c: &[f64], r: f64, s: [f64; 2]| {
+            PoseBuckets::new(&poses).dilate(c, r, s)
+        };
+        assert_eq!(dilate(&poses, &contour, 0.0, still), contour.to_vec());
+        assert_eq!(
+            dilate(&poses, &contour, 1.5, still),
+            vec![1.0, 1.0, 1.0, 0.2]
+        );
+        assert_eq!(
+            dilate(&poses, &contour, 1.4, still),
+            vec![1.0, 1.0, 1.0, 0.0]
+        );
+        assert_eq!(dilate(&poses, &contour, 10.0, still), vec![1.0; 4]);
+        // Moved by +1 first: pose 1's value lands on pose 2, pose 2's at 3 (reach 0.5 of 3.5).
+        assert_eq!(
+            dilate(&poses, &contour, 0.6, [1.0, 0.0]),
+            vec![0.0, 0.0, 1.0, 0.2]
+        );
+    }
+
+    #[test]
+    fn buckets_give_the_direct_scan_bit_for_bit() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mesh: Vec<[f64; 2]> = (0..20)
+            .flat_map(|j| (0..20).map(move |i| [i as f64 - 9.5, 40.0 + j as f64]))
+            .collect();
+        let scattered: Vec<[f64; 2]> = (0..300)
+            .map(|_| [rng.random_range(-10.0..10.0), rng.random_range(35.0..60.0)])
+            .collect();
+        // A clump far from a few isolated poses, and one pose alone.
+        let mut clumped: Vec<[f64; 2]> = (0..50).map(|k| [1e-3 * k as f64, 0.0]).collect();
+        clumped.extend([[30.0, 30.0], [-30.0, 5.0]]);
+        for poses in [mesh, scattered, clumped, vec![[1.0, 2.0]]] {
+            let buckets = PoseBuckets::new(&poses);
+            for _ in 0..20 {
+                let contour: Vec<f64> = poses.iter().map(|_| rng.random::<f64>().powi(4)).collect();
+                // Reaches from none to beyond the poses' extent, exactly on mesh distances too.
+                let reach = [0.0, 1.0, 2.0, 0.37, 4.0, 100.0, -1.5][rng.random_range(0..7)];
+                let shift = [
+                    rng.random_range(-3.0..3.0),
+                    [0.0, 1.0][rng.random_range(0..2)],
+                ];
+                assert_eq!(
+                    buckets.dilate(&contour, reach, shift),
+                    direct(&poses, &contour, reach, shift),
+                    "reach {reach}, shift {shift:?}"
+                );
+            }
+        }
+    }
+}
