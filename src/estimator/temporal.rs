@@ -281,6 +281,7 @@ impl PoseEstimator for TemporalEvidential {
             inner,
             file,
             refinement: self.refinement.clone(),
+            buckets: self.buckets.clone(),
         }))
     }
 }
