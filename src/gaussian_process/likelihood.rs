@@ -1,7 +1,9 @@
 //! The log marginal likelihood of the hyperparameters with its analytic gradient, and the
 //! inverse of a kernel matrix from its Cholesky factor.
 
-use nalgebra::{Cholesky, DMatrix};
+use nalgebra::{Cholesky, DMatrix, Dyn};
+
+use super::cholesky::cholesky;
 
 /// Minus the log marginal likelihood per fit sample, summed over the outputs (one kernel shared
 /// by all), as a function of θ = (log ℓ_1 … log ℓ_D, log σf, log(σn/σf)) (a ratio, so that every
@@ -42,6 +44,15 @@ impl Objective {
 
     /// Value and gradient at θ; `None` where the kernel matrix is not positive definite.
     pub fn eval(&self, theta: &[f64]) -> Option<(f64, Vec<f64>)> {
+        let point = self.value(theta)?;
+        let grad = self.gradient(&point)?;
+        Some((point.value, grad))
+    }
+
+    /// The value at θ and what its gradient needs; `None` where the kernel matrix is not
+    /// positive definite or the value is not finite. A line search rejects most of its trial
+    /// points on the value alone, so the gradient (an inverse, as costly as the factor) waits.
+    pub(super) fn value(&self, theta: &[f64]) -> Option<Point> {
         let (m, dim, outputs) = (self.m, self.dim, self.outputs as f64);
         let inv_l2: Vec<f64> = theta[..dim].iter().map(|t| (-2.0 * t).exp()).collect();
         let sf2 = (2.0 * theta[dim]).exp();
@@ -60,7 +71,7 @@ impl Objective {
             }
             kernel[(j, j)] = sf2 + sn2;
         }
-        let chol = Cholesky::new(kernel)?;
+        let chol = cholesky(kernel)?;
         let alpha = chol.solve(&self.y);
         let log_det: f64 = 2.0 * (0..m).map(|i| chol.l_dirty()[(i, i)].ln()).sum::<f64>();
         let fit: f64 = self.y.iter().zip(alpha.iter()).map(|(a, b)| a * b).sum();
@@ -68,6 +79,30 @@ impl Objective {
         let lml = -0.5 * fit
             - 0.5 * outputs * log_det
             - 0.5 * outputs * m as f64 * (2.0 * std::f64::consts::PI).ln();
+        let value = -1.0 / m as f64 * lml;
+        value.is_finite().then_some(Point {
+            value,
+            inv_l2,
+            sf2,
+            sn2,
+            kf,
+            chol,
+            alpha,
+        })
+    }
+
+    /// The gradient at a point [`Objective::value`] found; `None` where it is not finite.
+    pub(super) fn gradient(&self, point: &Point) -> Option<Vec<f64>> {
+        let (m, dim, outputs) = (self.m, self.dim, self.outputs as f64);
+        let Point {
+            inv_l2,
+            sf2,
+            sn2,
+            kf,
+            chol,
+            alpha,
+            ..
+        } = point;
         // W = Σ_o α_o α_oᵀ − (outputs)·K⁻¹; ∂L/∂θ = ½ tr(W ∂K/∂θ).
         let inverse = upper_inverse(chol.l_dirty());
         // Only i ≤ j is read: the upper triangle of K⁻¹, column-major.
@@ -80,10 +115,10 @@ impl Objective {
         let mut grad = vec![0.0; dim + 2];
         let mut off_diagonal = 0.0;
         let pairs = (0..m).flat_map(|j| (0..j).map(move |i| (i, j)));
-        for (((i, j), k), diff) in pairs.zip(&kf).zip(self.diffs.chunks_exact(dim)) {
+        for (((i, j), k), diff) in pairs.zip(kf).zip(self.diffs.chunks_exact(dim)) {
             let wk = w(i, j) * k;
             off_diagonal += wk;
-            for ((g, d), il) in grad.iter_mut().zip(diff).zip(&inv_l2) {
+            for ((g, d), il) in grad.iter_mut().zip(diff).zip(inv_l2) {
                 *g += wk * d * il;
             }
         }
@@ -92,10 +127,21 @@ impl Objective {
         grad[dim + 1] = sn2 * trace;
         grad[dim] = 2.0 * off_diagonal + sf2 * trace + grad[dim + 1];
         let scale = -1.0 / m as f64;
-        let value = scale * lml;
         let grad: Vec<f64> = grad.iter().map(|g| scale * g).collect();
-        (value.is_finite() && grad.iter().all(|g| g.is_finite())).then_some((value, grad))
+        grad.iter().all(|g| g.is_finite()).then_some(grad)
     }
+}
+
+/// The objective's value at one θ, with what its gradient needs.
+pub(super) struct Point {
+    pub(super) value: f64,
+    inv_l2: Vec<f64>,
+    sf2: f64,
+    sn2: f64,
+    /// Kernel values of the pairs i < j, in the order of the differences.
+    kf: Vec<f64>,
+    chol: Cholesky<f64, Dyn>,
+    alpha: DMatrix<f64>,
 }
 
 /// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
