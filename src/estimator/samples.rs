@@ -118,3 +118,48 @@ pub(super) fn check_exact_gp_count(samples: usize, method: &str) -> Result<(), E
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::{Gp, GpSettings, Labelled, Method};
+
+    #[test]
+    fn a_gp_fit_beyond_the_limit_is_refused_before_any_work() {
+        let n = MAX_EXACT_GP_SAMPLES + 1;
+        let names = vec!["f".to_string()];
+        let poses: Vec<[f64; 2]> = (0..n).map(|i| [0.0, 40.0 + i as f64 * 1e-3]).collect();
+        let rows: Vec<Vec<Option<f64>>> = (0..n).map(|i| vec![Some(i as f64)]).collect();
+        let data = TrainingSet::new(
+            &names,
+            Labelled {
+                poses: &poses,
+                rows: &rows,
+            },
+        );
+        let started = std::time::Instant::now();
+        let error = Gp::fit(&GpSettings::default(), &data)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            started.elapsed().as_secs_f64() < 1.0,
+            "{:?}",
+            started.elapsed()
+        );
+        assert!(
+            error.contains("2501 complete samples") && error.contains("2500"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn the_scenario_check_names_only_the_exact_gp_methods() {
+        let methods = [Method::KNN, Method::GP, Method::PARTICLE_FILTER];
+        assert!(check_exact_gp_samples(&methods, MAX_EXACT_GP_SAMPLES).is_ok());
+        assert!(check_exact_gp_samples(&[Method::KNN], 1_000_000).is_ok());
+        let error = check_exact_gp_samples(&methods, 10_000).unwrap_err();
+        assert!(error.contains("of gp, particle_filter factor"), "{error}");
+        assert!(error.contains("`estimators = [\"knn\"]`"), "{error}");
+        assert!(error.contains("64× the cost"), "{error}");
+    }
+}

@@ -77,10 +77,10 @@ fn update_panel(a: &mut [f64], n: usize, j0: usize) {
             }
         }
         if rows == ROWS {
-            for k in 0..j0 {
-                let base = k * n;
-                let li: [f64; ROWS] = std::array::from_fn(|r| a[base + i0 + r]);
-                let lj: [f64; PANEL] = std::array::from_fn(|c| a[base + j0 + c]);
+            // One column of L per k: two bounds checks, then 16 multiply-subtracts in registers.
+            for column in a[..j0 * n].chunks_exact(n) {
+                let li: [f64; ROWS] = column[i0..i0 + ROWS].try_into().unwrap_or([0.0; ROWS]);
+                let lj: [f64; PANEL] = column[j0..j0 + PANEL].try_into().unwrap_or([0.0; PANEL]);
                 for c in 0..PANEL {
                     for r in 0..ROWS {
                         acc[c][r] -= lj[c] * li[r];

@@ -4,6 +4,7 @@
 use nalgebra::{Cholesky, DMatrix, Dyn};
 
 use super::cholesky::cholesky;
+use super::inverse::upper_inverse;
 
 /// Minus the log marginal likelihood per fit sample, summed over the outputs (one kernel shared
 /// by all), as a function of θ = (log ℓ_1 … log ℓ_D, log σf, log(σn/σf)) (a ratio, so that every
@@ -142,63 +143,4 @@ pub(super) struct Point {
     kf: Vec<f64>,
     chol: Cholesky<f64, Dyn>,
     alpha: DMatrix<f64>,
-}
-
-/// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
-/// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
-/// time so that each loaded value serves four sums (several times faster than solving against
-/// the identity).
-pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
-    let n = l.nrows();
-    let l = l.as_slice();
-    let width = n.div_ceil(4) * 4;
-    // Columns of M = L⁻¹ (lower) by forward substitution, padded with zero columns to a
-    // multiple of 4. Column j starts as e_j; its rows above j stay exactly 0 throughout.
-    let mut m = vec![0.0; n * width];
-    for (b, block) in m.chunks_exact_mut(4 * n).enumerate() {
-        let j0 = 4 * b;
-        for c in 0..4 {
-            if j0 + c < n {
-                block[c * n + j0 + c] = 1.0;
-            }
-        }
-        let (x0, rest) = block.split_at_mut(n);
-        let (x1, rest) = rest.split_at_mut(n);
-        let (x2, x3) = rest.split_at_mut(n);
-        for k in j0..n {
-            let d = l[k + k * n];
-            let a = [x0[k] / d, x1[k] / d, x2[k] / d, x3[k] / d];
-            [x0[k], x1[k], x2[k], x3[k]] = a;
-            let column = &l[k * n + k + 1..(k + 1) * n];
-            let rows = x0[k + 1..]
-                .iter_mut()
-                .zip(x1[k + 1..].iter_mut())
-                .zip(x2[k + 1..].iter_mut().zip(x3[k + 1..].iter_mut()));
-            for (((y0, y1), (y2, y3)), lik) in rows.zip(column) {
-                *y0 -= a[0] * lik;
-                *y1 -= a[1] * lik;
-                *y2 -= a[2] * lik;
-                *y3 -= a[3] * lik;
-            }
-        }
-    }
-    // (K⁻¹)_ij = Σ_k M_ki M_kj, over k ≥ j0 for the block of j0 (the rest is exactly 0).
-    let mut inverse = vec![0.0; n * n];
-    for j0 in (0..n).step_by(4) {
-        let columns: [&[f64]; 4] = std::array::from_fn(|c| &m[(j0 + c) * n + j0..(j0 + c + 1) * n]);
-        for i in 0..(j0 + 4).min(n) {
-            let mut sums = [0.0; 4];
-            for (k, v) in m[i * n + j0..(i + 1) * n].iter().enumerate() {
-                for c in 0..4 {
-                    sums[c] += v * columns[c][k];
-                }
-            }
-            for (c, sum) in sums.into_iter().enumerate() {
-                if i <= j0 + c && j0 + c < n {
-                    inverse[i + (j0 + c) * n] = sum;
-                }
-            }
-        }
-    }
-    inverse
 }

@@ -5,11 +5,13 @@
 //! itself ([`cholesky`]: nalgebra's, bit for bit, faster). A leaf.
 
 mod cholesky;
+mod inverse;
 mod likelihood;
 mod optimiser;
 
 pub use cholesky::cholesky;
-pub use likelihood::{upper_inverse, Objective};
+pub use inverse::upper_inverse;
+pub use likelihood::Objective;
 pub use optimiser::{dot, minimise};
 
 use std::f64::consts::LN_10;

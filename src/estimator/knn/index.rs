@@ -19,8 +19,8 @@ use nalgebra::{DMatrix, SymmetricEigen};
 
 /// Coordinates the tree splits on.
 pub(super) const TREE_DIMS: usize = 4;
-/// Fewer samples than this are searched by brute force (measured: a tree does not pay below).
-pub(super) const MIN_SAMPLES: usize = 1024;
+/// Fewer samples than this are searched by brute force (a scan of 256 rows takes a few µs).
+pub(super) const MIN_SAMPLES: usize = 256;
 /// The tree is kept when a probe query gathers at most this share of the samples on average.
 const MAX_GATHERED_SHARE: f64 = 0.125;
 /// Probe queries when the index is built.
