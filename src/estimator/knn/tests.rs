@@ -56,9 +56,11 @@ fn assert_like_brute_force(knn: &Knn, queries: &[Vec<Option<f64>>]) {
     }
 }
 
+type Rows = Vec<Vec<Option<f64>>>;
+
 /// Samples on the manifold with every 10th row repeated further on, and queries: fresh poses,
 /// sample rows themselves, and rows with a feature missing (the brute force's case).
-fn manifold_case(dim: usize, seed: u64) -> (Vec<Vec<Option<f64>>>, Vec<Vec<Option<f64>>>) {
+fn manifold_case(dim: usize, seed: u64) -> (Rows, Rows) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut rows: Vec<Vec<Option<f64>>> = (0..1800)
         .map(|_| manifold(random_pose(&mut rng), dim))
