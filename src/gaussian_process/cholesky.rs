@@ -22,7 +22,13 @@ const ROWS: usize = 4;
 pub fn cholesky(mut matrix: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
     let n = matrix.nrows();
     assert_eq!(n, matrix.ncols(), "a Cholesky factor needs a square matrix");
-    let a = matrix.as_mut_slice();
+    let factored = super::simd::dispatch(|| factor_in_place(matrix.as_mut_slice(), n));
+    factored.then(|| Cholesky::pack_dirty(matrix))
+}
+
+/// The factorisation of [`cholesky`] on a column-major slice; `false` at a refused pivot.
+#[inline(always)]
+fn factor_in_place(a: &mut [f64], n: usize) -> bool {
     for j0 in (0..n).step_by(PANEL) {
         let width = PANEL.min(n - j0);
         if width == PANEL {
@@ -52,7 +58,7 @@ pub fn cholesky(mut matrix: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
             let diagonal = a[j + j * n];
             // nalgebra refuses a zero pivot and one without a real square root (negative, NaN).
             if diagonal == 0.0 || diagonal.is_nan() || diagonal < 0.0 {
-                return None;
+                return false;
             }
             let root = diagonal.sqrt();
             a[j + j * n] = root;
@@ -61,11 +67,12 @@ pub fn cholesky(mut matrix: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
             }
         }
     }
-    Some(Cholesky::pack_dirty(matrix))
+    true
 }
 
 /// Applies the updates of columns 0 … j0 − 1 to the lower part of columns j0 … j0 + 3, each
 /// entry's chain in increasing k; entries above the diagonal are computed but not stored.
+#[inline(always)]
 fn update_panel(a: &mut [f64], n: usize, j0: usize) {
     let mut i0 = j0;
     while i0 < n {

@@ -15,7 +15,12 @@ const TILE: usize = 4;
 /// Cholesky factor (column-major, upper part ignored); the rest of the returned matrix is 0.
 pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
     let n = l.nrows();
-    let l = l.as_slice();
+    super::simd::dispatch(|| inverse_of(l.as_slice(), n))
+}
+
+/// [`upper_inverse`] on a column-major slice.
+#[inline(always)]
+fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
     // M = L⁻¹ row-major, rows padded to a multiple of 4 columns (zero columns): a tile's four
     // values of one row of M are adjacent. Entries above the diagonal stay exactly 0.
     let width = n.div_ceil(TILE) * TILE;
