@@ -1,7 +1,7 @@
 //! The baseline estimators on 8 smooth synthetic features of the pose (plus a little noise):
 //! fitting on 400 (20 × 20 mesh) and 1,521 (39 × 39) samples over [−9.5, 9.5] × [38, 57] mm,
-//! and one frame's estimate; k-NN also per frame on 10,000 samples (100 × 100), where a k-d tree
-//! would start to matter.
+//! and one frame's estimate; k-NN also per frame on 10,000 samples (100 × 100), where its k-d
+//! tree matters, with 8 features and with 2, 32 and 64.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::{
@@ -13,13 +13,14 @@ use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 use std::time::Duration;
 
-/// 8 smooth features of the pose, each with noise of standard deviation 0.01.
-fn features(p: [f64; 2], rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
+/// `dim` smooth features of the pose, each with noise of standard deviation 0.01.
+fn features_of(p: [f64; 2], dim: usize, rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
     let noise = Normal::new(0.0, 0.01).expect("valid");
     let (x, y) = (p[0] / 9.5, (p[1] - 47.5) / 9.5);
-    (0..8)
+    (0..dim)
         .map(|f| {
-            let a = 0.5 + f as f64 * 0.37;
+            // Past the 8th, slopes fold back into the same range: distinct but alike features.
+            let a = 0.5 + (f % 8) as f64 * 0.37 + (f / 8) as f64 * 0.05;
             let v = (a * x + (1.0 - a) * y).sin() + (0.7 * a * x * y).cos() + 0.3 * a * y;
             Some(v + noise.sample(rng))
         })
@@ -35,6 +36,11 @@ struct Samples {
 
 impl Samples {
     fn mesh(side: usize) -> Self {
+        Self::mesh_of(side, 8)
+    }
+
+    /// A mesh with `dim` features per sample.
+    fn mesh_of(side: usize, dim: usize) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let step = 19.0 / (side - 1) as f64;
         let poses: Vec<[f64; 2]> = (0..side * side)
@@ -44,9 +50,12 @@ impl Samples {
                 [-9.5 + c as f64 * step, 38.0 + r as f64 * step]
             })
             .collect();
-        let rows = poses.iter().map(|&p| features(p, &mut rng)).collect();
+        let rows = poses
+            .iter()
+            .map(|&p| features_of(p, dim, &mut rng))
+            .collect();
         Self {
-            names: (0..8).map(|i| format!("f{i}")).collect(),
+            names: (0..dim).map(|i| format!("f{i}")).collect(),
             poses,
             rows,
         }
@@ -63,13 +72,13 @@ impl Samples {
     }
 }
 
-/// Feature rows of random poses inside the mesh.
-fn frames(n: usize) -> Vec<Vec<Option<f64>>> {
+/// Feature rows (`dim` features) of random poses inside the mesh.
+fn frames(n: usize, dim: usize) -> Vec<Vec<Option<f64>>> {
     let mut rng = ChaCha8Rng::seed_from_u64(12);
     (0..n)
         .map(|_| {
             let p = [rng.random_range(-9.0..9.0), rng.random_range(38.5..56.5)];
-            features(p, &mut rng)
+            features_of(p, dim, &mut rng)
         })
         .collect()
 }
@@ -80,7 +89,7 @@ fn bench_frames(
     id: BenchmarkId,
     estimator: &dyn PoseEstimator,
 ) {
-    let rows = frames(64);
+    let rows = frames(64, estimator.feature_names().len());
     let mut i = 0;
     group.bench_function(id, |b| {
         b.iter(|| {
@@ -131,5 +140,16 @@ fn estimate(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, fit, estimate);
+/// k-NN on 10,000 samples with 2, 32 and 64 features (8: `baseline_frame/knn/10000`).
+fn knn_features(c: &mut Criterion) {
+    let mut group = c.benchmark_group("knn_frame_10000");
+    for dim in [2, 32, 64] {
+        let samples = Samples::mesh_of(100, dim);
+        let knn = Knn::fit(&KnnSettings::default(), &samples.training()).expect("k-NN fits");
+        bench_frames(&mut group, BenchmarkId::new("features", dim), &knn);
+    }
+    group.finish();
+}
+
+criterion_group!(benches, fit, estimate, knn_features);
 criterion_main!(benches);

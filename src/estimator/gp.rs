@@ -16,16 +16,16 @@
 use crate::range::within;
 use std::path::Path;
 
-use nalgebra::{Cholesky, DMatrix};
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
-use super::samples::{check_samples, kept_samples};
+use super::samples::{check_exact_gp_count, check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
-use crate::gaussian_process::{dot, minimise, Objective, LOG_LENGTH};
+use crate::gaussian_process::{cholesky, dot, minimise, Objective, LOG_LENGTH};
 use crate::model::ModelError;
 use crate::model_file::{self, check_finite, corrupted, Header, Provenance};
 use crate::standardisation::Standardisation;
@@ -161,6 +161,7 @@ impl Gp {
         settings.check()?;
         check_training(data)?;
         let (poses, rows) = kept_samples(data, "the Gaussian process")?;
+        check_exact_gp_count(poses.len(), "gp")?;
         let dim = data.feature_names.len();
         let standardisation = Standardisation::fit(&rows, dim);
         let output = Standardisation::fit(&pose_rows(&poses), 2);
@@ -450,7 +451,7 @@ impl Factor {
             for i in 0..n {
                 k[(i, i)] = sf2 + noise_var;
             }
-            if let Some(chol) = Cholesky::new(k) {
+            if let Some(chol) = cholesky(k) {
                 let alpha = chol.solve(&y);
                 let l = chol.l_dirty();
                 let mut lower = vec![0.0; n * n];

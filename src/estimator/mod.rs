@@ -38,6 +38,8 @@ pub use registry::{
     register, CheckFn, EstimatorSettings, FitFn, LoadFn, Method, MethodEntry, RegistryError,
     SettingsContext, SharedFitFn, BUILT_IN,
 };
+pub(crate) use samples::check_exact_gp_samples;
+pub use samples::MAX_EXACT_GP_SAMPLES;
 pub use temporal::TemporalEvidential;
 
 use std::path::Path;

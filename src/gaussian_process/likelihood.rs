@@ -1,7 +1,10 @@
 //! The log marginal likelihood of the hyperparameters with its analytic gradient, and the
 //! inverse of a kernel matrix from its Cholesky factor.
 
-use nalgebra::{Cholesky, DMatrix};
+use nalgebra::{Cholesky, DMatrix, Dyn};
+
+use super::cholesky::cholesky;
+use super::inverse::upper_inverse;
 
 /// Minus the log marginal likelihood per fit sample, summed over the outputs (one kernel shared
 /// by all), as a function of θ = (log ℓ_1 … log ℓ_D, log σf, log(σn/σf)) (a ratio, so that every
@@ -42,6 +45,15 @@ impl Objective {
 
     /// Value and gradient at θ; `None` where the kernel matrix is not positive definite.
     pub fn eval(&self, theta: &[f64]) -> Option<(f64, Vec<f64>)> {
+        let point = self.value(theta)?;
+        let grad = self.gradient(&point)?;
+        Some((point.value, grad))
+    }
+
+    /// The value at θ and what its gradient needs; `None` where the kernel matrix is not
+    /// positive definite or the value is not finite. A line search rejects most of its trial
+    /// points on the value alone, so the gradient (an inverse, as costly as the factor) waits.
+    pub(super) fn value(&self, theta: &[f64]) -> Option<Point> {
         let (m, dim, outputs) = (self.m, self.dim, self.outputs as f64);
         let inv_l2: Vec<f64> = theta[..dim].iter().map(|t| (-2.0 * t).exp()).collect();
         let sf2 = (2.0 * theta[dim]).exp();
@@ -60,7 +72,7 @@ impl Objective {
             }
             kernel[(j, j)] = sf2 + sn2;
         }
-        let chol = Cholesky::new(kernel)?;
+        let chol = cholesky(kernel)?;
         let alpha = chol.solve(&self.y);
         let log_det: f64 = 2.0 * (0..m).map(|i| chol.l_dirty()[(i, i)].ln()).sum::<f64>();
         let fit: f64 = self.y.iter().zip(alpha.iter()).map(|(a, b)| a * b).sum();
@@ -68,6 +80,30 @@ impl Objective {
         let lml = -0.5 * fit
             - 0.5 * outputs * log_det
             - 0.5 * outputs * m as f64 * (2.0 * std::f64::consts::PI).ln();
+        let value = -1.0 / m as f64 * lml;
+        value.is_finite().then_some(Point {
+            value,
+            inv_l2,
+            sf2,
+            sn2,
+            kf,
+            chol,
+            alpha,
+        })
+    }
+
+    /// The gradient at a point [`Objective::value`] found; `None` where it is not finite.
+    pub(super) fn gradient(&self, point: &Point) -> Option<Vec<f64>> {
+        let (m, dim, outputs) = (self.m, self.dim, self.outputs as f64);
+        let Point {
+            inv_l2,
+            sf2,
+            sn2,
+            kf,
+            chol,
+            alpha,
+            ..
+        } = point;
         // W = Σ_o α_o α_oᵀ − (outputs)·K⁻¹; ∂L/∂θ = ½ tr(W ∂K/∂θ).
         let inverse = upper_inverse(chol.l_dirty());
         // Only i ≤ j is read: the upper triangle of K⁻¹, column-major.
@@ -80,10 +116,10 @@ impl Objective {
         let mut grad = vec![0.0; dim + 2];
         let mut off_diagonal = 0.0;
         let pairs = (0..m).flat_map(|j| (0..j).map(move |i| (i, j)));
-        for (((i, j), k), diff) in pairs.zip(&kf).zip(self.diffs.chunks_exact(dim)) {
+        for (((i, j), k), diff) in pairs.zip(kf).zip(self.diffs.chunks_exact(dim)) {
             let wk = w(i, j) * k;
             off_diagonal += wk;
-            for ((g, d), il) in grad.iter_mut().zip(diff).zip(&inv_l2) {
+            for ((g, d), il) in grad.iter_mut().zip(diff).zip(inv_l2) {
                 *g += wk * d * il;
             }
         }
@@ -92,67 +128,19 @@ impl Objective {
         grad[dim + 1] = sn2 * trace;
         grad[dim] = 2.0 * off_diagonal + sf2 * trace + grad[dim + 1];
         let scale = -1.0 / m as f64;
-        let value = scale * lml;
         let grad: Vec<f64> = grad.iter().map(|g| scale * g).collect();
-        (value.is_finite() && grad.iter().all(|g| g.is_finite())).then_some((value, grad))
+        grad.iter().all(|g| g.is_finite()).then_some(grad)
     }
 }
 
-/// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
-/// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
-/// time so that each loaded value serves four sums (several times faster than solving against
-/// the identity).
-pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
-    let n = l.nrows();
-    let l = l.as_slice();
-    let width = n.div_ceil(4) * 4;
-    // Columns of M = L⁻¹ (lower) by forward substitution, padded with zero columns to a
-    // multiple of 4. Column j starts as e_j; its rows above j stay exactly 0 throughout.
-    let mut m = vec![0.0; n * width];
-    for (b, block) in m.chunks_exact_mut(4 * n).enumerate() {
-        let j0 = 4 * b;
-        for c in 0..4 {
-            if j0 + c < n {
-                block[c * n + j0 + c] = 1.0;
-            }
-        }
-        let (x0, rest) = block.split_at_mut(n);
-        let (x1, rest) = rest.split_at_mut(n);
-        let (x2, x3) = rest.split_at_mut(n);
-        for k in j0..n {
-            let d = l[k + k * n];
-            let a = [x0[k] / d, x1[k] / d, x2[k] / d, x3[k] / d];
-            [x0[k], x1[k], x2[k], x3[k]] = a;
-            let column = &l[k * n + k + 1..(k + 1) * n];
-            let rows = x0[k + 1..]
-                .iter_mut()
-                .zip(x1[k + 1..].iter_mut())
-                .zip(x2[k + 1..].iter_mut().zip(x3[k + 1..].iter_mut()));
-            for (((y0, y1), (y2, y3)), lik) in rows.zip(column) {
-                *y0 -= a[0] * lik;
-                *y1 -= a[1] * lik;
-                *y2 -= a[2] * lik;
-                *y3 -= a[3] * lik;
-            }
-        }
-    }
-    // (K⁻¹)_ij = Σ_k M_ki M_kj, over k ≥ j0 for the block of j0 (the rest is exactly 0).
-    let mut inverse = vec![0.0; n * n];
-    for j0 in (0..n).step_by(4) {
-        let columns: [&[f64]; 4] = std::array::from_fn(|c| &m[(j0 + c) * n + j0..(j0 + c + 1) * n]);
-        for i in 0..(j0 + 4).min(n) {
-            let mut sums = [0.0; 4];
-            for (k, v) in m[i * n + j0..(i + 1) * n].iter().enumerate() {
-                for c in 0..4 {
-                    sums[c] += v * columns[c][k];
-                }
-            }
-            for (c, sum) in sums.into_iter().enumerate() {
-                if i <= j0 + c && j0 + c < n {
-                    inverse[i + (j0 + c) * n] = sum;
-                }
-            }
-        }
-    }
-    inverse
+/// The objective's value at one θ, with what its gradient needs.
+pub(super) struct Point {
+    pub(super) value: f64,
+    inv_l2: Vec<f64>,
+    sf2: f64,
+    sn2: f64,
+    /// Kernel values of the pairs i < j, in the order of the differences.
+    kf: Vec<f64>,
+    chol: Cholesky<f64, Dyn>,
+    alpha: DMatrix<f64>,
 }

@@ -1,12 +1,18 @@
 //! Gaussian-process maths shared by the GP baseline and the continuous tracker's feature maps:
 //! the squared-exponential kernel's log marginal likelihood with its gradient
 //! ([`Objective`]), a box-constrained L-BFGS over the log hyperparameters ([`minimise`]), and
-//! the inverse of a kernel matrix from its Cholesky factor ([`upper_inverse`]). A leaf.
+//! the inverse of a kernel matrix from its Cholesky factor ([`upper_inverse`]), and that factor
+//! itself ([`cholesky`]: nalgebra's, bit for bit, faster). A leaf.
 
+mod cholesky;
+mod inverse;
 mod likelihood;
 mod optimiser;
+mod simd;
 
-pub use likelihood::{upper_inverse, Objective};
+pub use cholesky::cholesky;
+pub use inverse::upper_inverse;
+pub use likelihood::Objective;
 pub use optimiser::{dot, minimise};
 
 use std::f64::consts::LN_10;

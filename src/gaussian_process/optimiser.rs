@@ -134,9 +134,13 @@ pub(super) fn line_search(
         if decrease >= 0.0 {
             return None; // the projection left no descent along this direction
         }
-        if let Some((ft, gt)) = objective.eval(&trial) {
-            if ft <= f + 1e-4 * decrease {
-                return Some((trial, ft, gt));
+        // The gradient only once the value is accepted: as `eval` would, a non-finite one
+        // rejects the step.
+        if let Some(point) = objective.value(&trial) {
+            if point.value <= f + 1e-4 * decrease {
+                if let Some(gt) = objective.gradient(&point) {
+                    return Some((trial, point.value, gt));
+                }
             }
         }
         step *= 0.5;

@@ -89,3 +89,83 @@ fn the_blocked_inverse_matches_solving_against_the_identity() {
         }
     }
 }
+
+/// The previous `upper_inverse`, column by column (four at a time), kept as the reference the
+/// tiled one must match bit for bit. The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
+/// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
+/// time so that each loaded value serves four sums (several times faster than solving against
+/// the identity).
+#[test]
+fn the_tiled_inverse_matches_the_column_version_bit_for_bit() {
+    for n in [1, 2, 3, 4, 5, 6, 7, 8, 9, 13, 33, 64, 101, 150] {
+        // B Bᵀ + I/2 from a fixed pseudo-random B: positive definite, no structure.
+        let mut state: u64 = n as u64;
+        let b = DMatrix::from_fn(n, n, |_, _| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        });
+        let k = &b * b.transpose() + DMatrix::identity(n, n) * 0.5;
+        let chol = Cholesky::new(k).unwrap();
+        let ours = upper_inverse(chol.l_dirty());
+        let reference = reference_inverse(chol.l_dirty());
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&ours), bits(&reference), "n = {n}");
+    }
+}
+
+fn reference_inverse(l: &DMatrix<f64>) -> Vec<f64> {
+    let n = l.nrows();
+    let l = l.as_slice();
+    let width = n.div_ceil(4) * 4;
+    // Columns of M = L⁻¹ (lower) by forward substitution, padded with zero columns to a
+    // multiple of 4. Column j starts as e_j; its rows above j stay exactly 0 throughout.
+    let mut m = vec![0.0; n * width];
+    for (b, block) in m.chunks_exact_mut(4 * n).enumerate() {
+        let j0 = 4 * b;
+        for c in 0..4 {
+            if j0 + c < n {
+                block[c * n + j0 + c] = 1.0;
+            }
+        }
+        let (x0, rest) = block.split_at_mut(n);
+        let (x1, rest) = rest.split_at_mut(n);
+        let (x2, x3) = rest.split_at_mut(n);
+        for k in j0..n {
+            let d = l[k + k * n];
+            let a = [x0[k] / d, x1[k] / d, x2[k] / d, x3[k] / d];
+            [x0[k], x1[k], x2[k], x3[k]] = a;
+            let column = &l[k * n + k + 1..(k + 1) * n];
+            let rows = x0[k + 1..]
+                .iter_mut()
+                .zip(x1[k + 1..].iter_mut())
+                .zip(x2[k + 1..].iter_mut().zip(x3[k + 1..].iter_mut()));
+            for (((y0, y1), (y2, y3)), lik) in rows.zip(column) {
+                *y0 -= a[0] * lik;
+                *y1 -= a[1] * lik;
+                *y2 -= a[2] * lik;
+                *y3 -= a[3] * lik;
+            }
+        }
+    }
+    // (K⁻¹)_ij = Σ_k M_ki M_kj, over k ≥ j0 for the block of j0 (the rest is exactly 0).
+    let mut inverse = vec![0.0; n * n];
+    for j0 in (0..n).step_by(4) {
+        let columns: [&[f64]; 4] = std::array::from_fn(|c| &m[(j0 + c) * n + j0..(j0 + c + 1) * n]);
+        for i in 0..(j0 + 4).min(n) {
+            let mut sums = [0.0; 4];
+            for (k, v) in m[i * n + j0..(i + 1) * n].iter().enumerate() {
+                for c in 0..4 {
+                    sums[c] += v * columns[c][k];
+                }
+            }
+            for (c, sum) in sums.into_iter().enumerate() {
+                if i <= j0 + c && j0 + c < n {
+                    inverse[i + (j0 + c) * n] = sum;
+                }
+            }
+        }
+    }
+    inverse
+}

@@ -448,6 +448,13 @@ impl Scenario {
                 .plan(&rig.five_bar)
                 .map_err(|e| invalid(format!("{what}: {e}")))?;
         }
+        // The sample poses, counted as the memory estimate counts them, against the exact GPs.
+        let dense = (scenario.sample.motion.targets(&rig.five_bar))
+            .map_err(|e| invalid(format!("[sample] motion: {e}")))?
+            .len();
+        let kept = dense.div_ceil(scenario.sample.keep_every);
+        let samples = (scenario.sample.adaptive.as_ref()).map_or(kept, |a| a.max_samples.max(kept));
+        crate::estimator::check_exact_gp_samples(&scenario.estimators, samples).map_err(invalid)?;
         Ok(CheckedScenario {
             raw: self.clone(),
             scenario,

@@ -313,3 +313,42 @@ fn seeds_a_scenario_file_cannot_hold_are_refused() {
         .to_string();
     assert!(error.contains("2^63"), "{error}");
 }
+
+#[test]
+fn ten_thousand_samples_with_the_default_estimators_are_refused_at_once() {
+    // scale.toml's 100 × 100 sample mesh without its list of estimators: the defaults include
+    // the GP and the continuous tracker, whose exact kernels would factor 10,000 samples.
+    let text = r#"
+name = "s"
+
+[sample]
+motion = { kind = "mesh", spacing = 0.19191919191919 }
+"#;
+    // Parsing checks every variant.
+    let started = std::time::Instant::now();
+    let error = ScenarioSet::parse(text, "s.toml").unwrap_err().to_string();
+    assert!(
+        started.elapsed().as_secs_f64() < 5.0,
+        "{:?}",
+        started.elapsed()
+    );
+    for part in [
+        "10000 sample poses",
+        "2500",
+        "gp",
+        "continuous",
+        "estimators = [",
+    ] {
+        assert!(error.contains(part), "`{part}` missing from: {error}");
+    }
+    // Listing the estimators without them passes (as scale.toml does), and so does a mesh
+    // within the limit with the defaults.
+    let listed = format!("estimators = [\"evidential\", \"knn\", \"centre\"]\n{text}");
+    ScenarioSet::parse(&listed, "s.toml").unwrap().variants[0]
+        .check()
+        .unwrap();
+    let at_limit = text.replace("0.19191919191919", "0.39583333333333"); // 49 × 49 = 2,401
+    ScenarioSet::parse(&at_limit, "s.toml").unwrap().variants[0]
+        .check()
+        .unwrap();
+}

@@ -6,12 +6,13 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Cholesky, DMatrix};
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::grid_share;
+use crate::estimator::MAX_EXACT_GP_SAMPLES;
 
-use crate::gaussian_process::{minimise, upper_inverse, Objective};
+use crate::gaussian_process::{cholesky, minimise, upper_inverse, Objective};
 use crate::planar::bounding_box;
 use crate::standardisation::Standardisation;
 
@@ -140,6 +141,13 @@ impl Surrogate {
         spacing: f64,
         leave_one_out: bool,
     ) -> Result<Self, String> {
+        if poses.len() > MAX_EXACT_GP_SAMPLES {
+            return Err(format!(
+                "{} samples are more than the {MAX_EXACT_GP_SAMPLES} an exact Gaussian process \
+                 factors (n³/3 work per feature); fit on fewer samples",
+                poses.len()
+            ));
+        }
         let dim = features.means.len();
         let standardised: Vec<[f64; 2]> = poses
             .iter()
@@ -363,7 +371,7 @@ impl FeatureKernel {
             for i in 0..n {
                 k[(i, i)] = signal_var + noise_var;
             }
-            let Some(chol) = Cholesky::new(k) else {
+            let Some(chol) = cholesky(k) else {
                 continue;
             };
             let alpha = chol.solve(&y).iter().copied().collect();

@@ -4,7 +4,13 @@
 //! Behaviour worth knowing: sample rows with a missing or non-finite value are dropped (an error
 //! when none remains); a frame's missing features are left out of the distances (the search runs
 //! on the features present, flagged in `flags.missing`); a frame with no feature present has no
-//! estimate. Ties in distance go to the lower sample index. Brute force: O(n·D) per frame.
+//! estimate. Ties in distance go to the lower sample index. A frame with every feature present
+//! is searched through a k-d tree when one pays (`index.rs`: exact, the brute force's answer to
+//! the bit); otherwise, and whenever a distance overflows, by brute force: O(n·D) per frame.
+
+mod index;
+#[cfg(test)]
+mod tests;
 
 use crate::range::within;
 use std::path::Path;
@@ -77,6 +83,8 @@ pub struct Knn {
     file: KnnFile,
     /// Standardised sample features, row-major.
     inputs: Vec<f64>,
+    /// The tree over them, where one pays.
+    index: Option<index::Index>,
 }
 
 /// The model file, and the fitted state.
@@ -131,7 +139,16 @@ impl Knn {
     /// The estimator of a fitted state: the same operations whether fitted or loaded.
     fn new(file: KnnFile) -> Self {
         let inputs = file.standardisation.apply_rows(&file.sample_features);
-        Self { file, inputs }
+        let dim = file.header.feature_names.len();
+        let mask = vec![1.0; dim];
+        let index = index::Index::build(&inputs, dim, file.settings.k, |query, i| {
+            squared_distance(&inputs[i * dim..(i + 1) * dim], query, &mask)
+        });
+        Self {
+            file,
+            inputs,
+            index,
+        }
     }
 
     /// The settings it was fitted with.
@@ -154,9 +171,31 @@ impl Knn {
         features: &[Option<f64>],
     ) -> Result<Vec<(usize, f64)>, EstimatorError> {
         let dim = self.file.header.feature_names.len();
+        let Some((query, mask, complete)) = self.query(features)? else {
+            return Ok(Vec::new());
+        };
+        let k = self.file.settings.k;
+        if let (true, Some(index)) = (complete, &self.index) {
+            let row = |i: usize| &self.inputs[i * dim..(i + 1) * dim];
+            let found = index.nearest(&query, k, |i| squared_distance(row(i), &query, &mask));
+            if let Some((best, _)) = found {
+                return Ok(best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect());
+            }
+        }
+        Ok(self.brute_force(&query, &mask))
+    }
+
+    /// A frame's standardised values, the mask of its present features (1, or 0 for missing)
+    /// and whether every feature is present; `None` when none is.
+    #[allow(clippy::type_complexity)]
+    fn query(
+        &self,
+        features: &[Option<f64>],
+    ) -> Result<Option<(Vec<f64>, Vec<f64>, bool)>, EstimatorError> {
+        let dim = self.file.header.feature_names.len();
         let (values, missing) = frame_values(features, dim)?;
         if missing.len() == dim {
-            return Ok(Vec::new());
+            return Ok(None);
         }
         // A missing feature gets weight 0: same sum, one branch-free loop.
         let mut query = vec![0.0; dim];
@@ -167,23 +206,24 @@ impl Knn {
                 mask[d] = 1.0;
             }
         }
-        let k = self.file.settings.k;
+        Ok(Some((query, mask, missing.is_empty())))
+    }
+
+    /// The k nearest samples by scanning them all (see [`Knn::neighbours`]); a missing
+    /// feature has weight 0 in `mask`.
+    fn brute_force(&self, query: &[f64], mask: &[f64]) -> Vec<(usize, f64)> {
+        let (k, dim) = (self.file.settings.k, query.len());
         // (squared distance, distance when the square overflowed, sample index).
         let mut best: Vec<(f64, f64, usize)> = Vec::with_capacity(k + 1);
         for (i, row) in self.inputs.chunks_exact(dim).enumerate() {
-            let d2: f64 = row
-                .iter()
-                .zip(&query)
-                .zip(&mask)
-                .map(|((r, q), m)| m * (q - r) * (q - r))
-                .sum();
+            let d2 = squared_distance(row, query, mask);
             // A frame far beyond the samples (a fault of 1e200) overflows the square: rank by
             // the distance itself, after every finite square.
             let key = if d2.is_finite() {
                 (d2, 0.0)
             } else {
                 let terms =
-                    (row.iter().zip(&query).zip(&mask))
+                    (row.iter().zip(query).zip(mask))
                         .map(|((r, q), m)| if *m > 0.0 { q - r } else { 0.0 });
                 (f64::INFINITY, scaled_norm(terms))
             };
@@ -195,10 +235,9 @@ impl Knn {
             best.insert(at, (key.0, key.1, i));
             best.truncate(k);
         }
-        Ok(best
-            .into_iter()
+        best.into_iter()
             .map(|(d2, far, i)| (i, if d2.is_finite() { d2.sqrt() } else { far }))
-            .collect())
+            .collect()
     }
 
     /// Reads a model file's text, checking the header, the settings, the standardisation and
@@ -311,6 +350,16 @@ impl PoseEstimator for Knn {
     fn to_json(&self) -> Result<String, EstimatorError> {
         Ok(model_file::to_text(&self.file)?)
     }
+}
+
+/// The squared distance of a sample row from a query over the features `mask` weighs 1: the
+/// one formula both searches rank by, so they agree to the bit.
+fn squared_distance(row: &[f64], query: &[f64], mask: &[f64]) -> f64 {
+    row.iter()
+        .zip(query)
+        .zip(mask)
+        .map(|((r, q), m)| m * (q - r) * (q - r))
+        .sum()
 }
 
 /// The scenario checks of k-NN: its `[knn]` section.
