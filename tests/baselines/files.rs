@@ -312,3 +312,61 @@ fn a_workbench_shares_fits_between_identical_training_sets_only() {
     assert_eq!(knn.method(), "knn");
     assert_eq!(bench.shared_fits(), 4);
 }
+
+/// The temporal methods' fits (and the paper tracker's) are shared too: between runs of one
+/// training seed, handed out byte for byte as a fresh fit for that run would be, and fitted
+/// again for another seed (the particle filter draws from it).
+#[test]
+fn a_workbench_shares_temporal_fits_within_one_seed_only() {
+    let data = Data::new(8, smooth);
+    let poses: Vec<[f64; 2]> = (0..40)
+        .map(|i| {
+            let a = i as f64 * 0.25;
+            [4.0 * a.cos(), 47.5 + 4.0 * a.sin()]
+        })
+        .collect();
+    let rows: Vec<Vec<Option<f64>>> = poses.iter().map(|&p| smooth(p)).collect();
+    let times: Vec<f64> = (0..40).map(|i| i as f64 * 0.1).collect();
+    let with = |name: &str, seed: u64| TrainingSet {
+        provenance: Provenance::new(Some(name.to_string()), seed),
+        validation: Some(Labelled {
+            poses: &poses,
+            rows: &rows,
+        }),
+        validation_times: Some(&times),
+        ..data.training()
+    };
+    let settings = EstimatorSettings::default();
+    let bench = Workbench::new();
+    let json = |e: Box<dyn PoseEstimator>| e.to_json().unwrap();
+    let methods = [
+        Method::EVIDENTIAL,
+        Method::EVIDENTIAL_TEMPORAL,
+        Method::CONTINUOUS_TEMPORAL,
+        Method::PARTICLE_FILTER,
+    ];
+    let mut fits = 0;
+    for method in methods {
+        let first = json(bench.fit(method, &settings, &with("a", 7)).unwrap());
+        let second = json(bench.fit(method, &settings, &with("b", 7)).unwrap());
+        fits += 1;
+        assert_eq!(bench.shared_fits(), fits, "{method}: one fit, two runs");
+        assert_eq!(
+            second,
+            json(method.fit(&settings, &with("b", 7)).unwrap()),
+            "{method}: the shared fit is the run's own"
+        );
+        // The run's name, in the file and in the inner model file it embeds as a string.
+        let renamed = first
+            .replace("\"a\"", "\"b\"")
+            .replace("\\\"a\\\"", "\\\"b\\\"");
+        assert_eq!(renamed, second, "{method}");
+        let reseeded = json(bench.fit(method, &settings, &with("b", 8)).unwrap());
+        fits += usize::from(method.entry().over_time);
+        assert_eq!(bench.shared_fits(), fits, "{method}: another seed");
+        assert_eq!(
+            reseeded,
+            json(method.fit(&settings, &with("b", 8)).unwrap())
+        );
+    }
+}
