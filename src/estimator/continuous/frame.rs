@@ -44,13 +44,25 @@ impl PastTerm {
     /// −2 ln c(q) and its gradient.
     pub(super) fn chi2(&self, q: [f64; 2]) -> (f64, [f64; 2]) {
         let d = [q[0] - self.centre[0], q[1] - self.centre[1]];
+        // Clearly inside the flat top (hypot cannot round beyond the reach): the same zero
+        // without the hypot.
+        let reach2 = self.reach * self.reach;
+        if d[0] * d[0] + d[1] * d[1] < reach2 * (1.0 - 1e-9) {
+            return (0.0, [0.0; 2]);
+        }
         let distance = d[0].hypot(d[1]);
         let over = (distance - self.reach).max(0.0);
         if over <= 0.0 {
             return (0.0, [0.0; 2]);
         }
         let z = over / self.scale;
-        let e = (-0.5 * z * z).exp();
+        // exp(x) is exactly 0 for x < −745.2; far from the centre that skips libm's slow
+        // underflow path.
+        let e = if z * z > UNDERFLOW_Z2 {
+            0.0
+        } else {
+            (-0.5 * z * z).exp()
+        };
         let c = 1.0 - self.reliability + self.reliability * e;
         if c <= 0.0 {
             return (f64::INFINITY, [0.0; 2]);
@@ -59,6 +71,9 @@ impl PastTerm {
         (-2.0 * c.ln(), [slope * d[0], slope * d[1]])
     }
 }
+
+/// z² beyond which exp(−½ z²) underflows to exactly 0 (−½ z² < −750).
+const UNDERFLOW_Z2: f64 = 1500.0;
 
 /// One frame's measurements against the model, with every group fit memoised.
 pub(super) struct Frame<'a> {
@@ -188,11 +203,16 @@ impl<'a> Frame<'a> {
         let d = self.values.len();
         let past = self.past.filter(|_| group & self.past_bit() != 0);
         let poses = self.model.sample_poses();
+        let mut past_chi2 = self.grid.past_samples.borrow_mut();
+        if let (Some(past), true) = (&past, past_chi2.is_empty()) {
+            // The same for every group with the past: computed once per frame.
+            past_chi2.extend(poses.iter().map(|&q| past.chi2(q).0));
+        }
         let mut best = (0, f64::INFINITY);
         for (k, z2) in self.sample_z2.chunks_exact(d).enumerate() {
             let mut chi2: f64 = members(group & !self.past_bit()).map(|i| z2[i]).sum();
-            if let Some(past) = &past {
-                chi2 += past.chi2(poses[k]).0;
+            if past.is_some() {
+                chi2 += past_chi2[k];
             }
             if chi2 < best.1 {
                 best = (k, chi2);
@@ -348,4 +368,78 @@ pub(super) fn solve2(a: [[f64; 2]; 2], b: [f64; 2]) -> Option<[f64; 2]> {
         (a[0][0] * b[1] - a[1][0] * b[0]) / det,
     ];
     x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The carried belief's term without the shortcuts: hypot and exp everywhere.
+    fn plain(p: &PastTerm, q: [f64; 2]) -> (f64, [f64; 2]) {
+        let d = [q[0] - p.centre[0], q[1] - p.centre[1]];
+        let distance = d[0].hypot(d[1]);
+        let over = (distance - p.reach).max(0.0);
+        if over <= 0.0 {
+            return (0.0, [0.0; 2]);
+        }
+        let z = over / p.scale;
+        let e = (-0.5 * z * z).exp();
+        let c = 1.0 - p.reliability + p.reliability * e;
+        if c <= 0.0 {
+            return (f64::INFINITY, [0.0; 2]);
+        }
+        let slope = 2.0 * p.reliability * z * e / c / p.scale / distance;
+        (-2.0 * c.ln(), [slope * d[0], slope * d[1]])
+    }
+
+    #[test]
+    fn the_past_terms_shortcuts_are_bit_identical() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        // Poses inside the flat top, beyond it, and where exp underflows.
+        let mut seen = [0usize; 3];
+        for k in 0..30_000 {
+            let past = PastTerm {
+                centre: [rng.random_range(-10.0..10.0), rng.random_range(40.0..55.0)],
+                reach: if k % 7 == 0 {
+                    0.0
+                } else {
+                    rng.random_range(0.0..5.0)
+                },
+                scale: rng.random_range(1e-3..2.0),
+                reliability: if k % 3 == 0 {
+                    1.0
+                } else {
+                    rng.random_range(0.0..1.0)
+                },
+            };
+            let angle = rng.random_range(0.0..std::f64::consts::TAU);
+            let distance = match k % 4 {
+                // On the edge of the flat top, to the last bits.
+                0 => past.reach * (1.0 + rng.random_range(-4.0..4.0) * f64::EPSILON),
+                _ => rng.random_range(0.0..past.reach + 80.0 * past.scale),
+            };
+            let q = [
+                past.centre[0] + distance * angle.cos(),
+                past.centre[1] + distance * angle.sin(),
+            ];
+            let (chi2, gradient) = past.chi2(q);
+            let (want, want_gradient) = plain(&past, q);
+            assert_eq!(chi2.to_bits(), want.to_bits(), "{past:?} at {q:?}");
+            for (a, b) in gradient.iter().zip(want_gradient) {
+                assert_eq!(a.to_bits(), b.to_bits(), "{past:?} at {q:?}");
+            }
+            let d = [q[0] - past.centre[0], q[1] - past.centre[1]];
+            let z = (d[0].hypot(d[1]) - past.reach).max(0.0) / past.scale;
+            seen[if d[0] * d[0] + d[1] * d[1] < past.reach * past.reach * (1.0 - 1e-9) {
+                0
+            } else if z * z > UNDERFLOW_Z2 {
+                2
+            } else {
+                1
+            }] += 1;
+        }
+        assert!(seen.iter().all(|&n| n > 1000), "{seen:?}");
+    }
 }

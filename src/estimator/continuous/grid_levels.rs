@@ -23,6 +23,7 @@
 //! and sum. Without a threshold the cut starts at the group's χ² at one node (an upper bound of
 //! 2K_G) and falls to the least node χ² found, blocks taken in increasing order of their bound.
 
+use std::cell::RefCell;
 use std::collections::HashMap;
 
 use super::frame::Frame;
@@ -99,6 +100,11 @@ pub(super) struct GridCache {
     levels: HashMap<GroupMask, (GridLevel, f64)>,
     /// The same for the discounted levels of [`super::rules`].
     pub(super) discounted: HashMap<GroupMask, (GridLevel, f64)>,
+    /// The carried belief's (residual, slopes) per node, NaN until first needed (empty: none
+    /// yet): every group with the past reads the same terms.
+    past_nodes: RefCell<Vec<[f64; 3]>>,
+    /// The carried belief's χ² term at each sample pose (empty until first needed).
+    pub(super) past_samples: RefCell<Vec<f64>>,
 }
 
 impl GridCache {
@@ -106,6 +112,8 @@ impl GridCache {
         self.kept.clear();
         self.levels.clear();
         self.discounted.clear();
+        self.past_nodes.get_mut().clear();
+        self.past_samples.get_mut().clear();
     }
 }
 
@@ -197,15 +205,14 @@ impl Frame<'_> {
             let [f, fx, fy, _] = table[n * d + i];
             ((y - f) * inv, -fx * inv, -fy * inv)
         } else {
-            let Some(past) = &self.past else { return };
-            let (chi2, gradient) = past.chi2(self.node_pose(n));
-            if !chi2.is_finite() {
+            let Some([r, gx, gy]) = self.past_node(n) else {
+                return;
+            };
+            if r == f64::INFINITY {
                 sums[6] = f64::INFINITY;
                 return;
             }
-            let r = chi2.sqrt();
-            let half = if r > 0.0 { 0.5 / r } else { 0.0 };
-            (r, gradient[0] * half, gradient[1] * half)
+            (r, gx, gy)
         };
         let reach = 0.5 * (gx.abs() * step[0] + gy.abs() * step[1]);
         let alone = (z.abs() - reach).max(0.0);
@@ -216,6 +223,30 @@ impl Frame<'_> {
         sums[4] += gx * gy;
         sums[5] += gy * gy;
         sums[6] += alone * alone;
+    }
+
+    /// The carried belief's residual √(−2 ln c) and its slopes at node `n` (residual +∞ where
+    /// c is 0), computed once per frame; `None` without a past.
+    fn past_node(&self, n: usize) -> Option<[f64; 3]> {
+        let past = self.past.as_ref()?;
+        let mut cache = self.grid.past_nodes.borrow_mut();
+        if cache.is_empty() {
+            let (_, _, nodes, _) = self.model.surrogate.grid();
+            cache.resize(nodes[0] * nodes[1], [f64::NAN; 3]);
+        }
+        if !cache[n][0].is_nan() {
+            return Some(cache[n]);
+        }
+        let (chi2, gradient) = past.chi2(self.node_pose(n));
+        let terms = if chi2.is_finite() {
+            let r = chi2.sqrt();
+            let half = if r > 0.0 { 0.5 / r } else { 0.0 };
+            [r, gradient[0] * half, gradient[1] * half]
+        } else {
+            [f64::INFINITY, 0.0, 0.0]
+        };
+        cache[n] = terms;
+        Some(terms)
     }
 
     /// Per block and feature, the lower bound of l_i over the block (0 for a missing value).
