@@ -124,6 +124,22 @@ pub fn fit_parts(methods: &[Method], settings: &EstimatorSettings, shape: &FitSh
             format!("continuous.grid_spacing = {}", c.grid_spacing),
             grid,
         ));
+        if uses(Method::CONTINUOUS) || uses(Method::CONTINUOUS_TEMPORAL) {
+            // A frame's groups keep the nodes within their cut, with 7 sums each: up to a grid's worth.
+            parts.push(part(
+                format!("continuous kept nodes of a frame's groups, up to {gx} × {gy}"),
+                format!("continuous.grid_spacing = {}", c.grid_spacing),
+                (gx as u64 * gy as u64).saturating_mul(7 * F64 + 4),
+            ));
+        }
+        if uses(Method::CONTINUOUS_TEMPORAL) {
+            // The carried belief's residual and slopes at every node, one frame at a time.
+            parts.push(part(
+                format!("continuous_temporal carried belief, {gx} × {gy} nodes"),
+                format!("continuous.grid_spacing = {}", c.grid_spacing),
+                (gx as u64 * gy as u64).saturating_mul(3 * F64),
+            ));
+        }
         // Kernel, its factor and the leave-one-out inverse, one feature at a time.
         parts.push(part(
             "continuous surrogate kernel matrices".into(),
