@@ -4,7 +4,7 @@ use std::io::Write;
 use std::process::{Command, Output, Stdio};
 
 mod dataset_cmd;
-mod outputs;
+pub(crate) mod outputs;
 mod report;
 mod runs;
 mod shards;

@@ -1,6 +1,7 @@
 //! Fusion rules (issue 30): every variant of `scenarios/rules.toml` meets its bands on seed 1,
 //! as `evitrack sweep scenarios/rules.toml --check` checks them (135 runs; about a minute on 2
-//! cores since the variants share their fits).
+//! cores since the variants share their fits), and their files hold no undocumented non-finite
+//! number.
 
 use crate::run_every_variant;
 
@@ -12,6 +13,7 @@ fn the_rules_sweep_meets_its_expectations() {
         let missed = output.summary.regressions();
         assert!(missed.is_empty(), "{name}: {missed:#?}");
     }
+    crate::cli::outputs::scan_outputs(&runs);
 }
 
 /// Loads a scenario whose `[track]` ends with `track`; the error's text.
