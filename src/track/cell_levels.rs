@@ -1,7 +1,7 @@
 //! The paper's tracker seen by the generic group search: its cells' pairwise and group levels,
 //! and the fallback feature.
 
-use super::group_search::{select_group, GroupLevels, GroupMask, Selection};
+use super::group_search::{members, select_group, GroupLevels, GroupMask, Selection};
 use super::tracker::{Tracker, Usable};
 use super::tuples::TupleStack;
 use crate::evidence::Constructor;
@@ -41,6 +41,65 @@ impl GroupLevels for CellLevels<'_> {
 
     fn cheap_pairs(&self) -> bool {
         self.tracker.settings.constructor == Constructor::Bayesian
+    }
+
+    fn floors_without_one(&mut self, group: GroupMask) -> Option<Vec<f64>> {
+        match self.tracker.settings.constructor {
+            Constructor::Bayesian => self.bayesian_floors(group),
+            Constructor::Consonant => None,
+        }
+    }
+}
+
+impl CellLevels<'_> {
+    /// Bayesian floors of `group` without each member: the level's sum over the state tuples
+    /// taken over the cells instead (every tuple lies on a cell, with the same product, so the
+    /// sum can only grow and the level only fall), each cell's product the members' before the
+    /// one left out times those after it.
+    fn bayesian_floors(&self, group: GroupMask) -> Option<Vec<f64>> {
+        let cells = self.tracker.cell_count();
+        let ms: Vec<(&[usize], &Usable)> = members(group)
+            .map(|i| {
+                Some((
+                    self.tracker.to_cells[i].assignment(),
+                    self.usable[i].as_ref()?,
+                ))
+            })
+            .collect::<Option<_>>()?;
+        let q = ms.len();
+        // after[k * cells + u]: the product of members k.. on cell u.
+        let mut after = vec![1.0; (q + 1) * cells];
+        for (k, (states, m)) in ms.iter().enumerate().rev() {
+            let (head, tail) = after.split_at_mut((k + 1) * cells);
+            for ((a, &b), &su) in head[k * cells..]
+                .iter_mut()
+                .zip(&tail[..cells])
+                .zip(*states)
+            {
+                *a = b * m.contour[su];
+            }
+        }
+        let mut before = vec![1.0; cells];
+        let mut floors = Vec::with_capacity(q);
+        for (k, (states, m)) in ms.iter().enumerate() {
+            let rest = &after[(k + 1) * cells..(k + 2) * cells];
+            let sum: f64 = before.iter().zip(rest).map(|(a, b)| a * b).sum();
+            let log_scale: f64 = (ms.iter().enumerate())
+                .filter(|&(j, _)| j != k)
+                .map(|(_, (_, m))| m.scale.ln())
+                .sum();
+            // No floor where the sum may have underflowed.
+            let floor = if sum.is_finite() && sum > 1e-250 {
+                (-(sum.ln() + log_scale)).max(0.0)
+            } else {
+                0.0
+            };
+            floors.push(floor);
+            for (b, &su) in before.iter_mut().zip(*states) {
+                *b *= m.contour[su];
+            }
+        }
+        Some(floors)
     }
 }
 

@@ -142,3 +142,45 @@ fn the_pruned_selection_equals_the_exhaustive_one_on_random_frames_with_faulty_f
         "partial {partial}, split {split}"
     );
 }
+
+#[test]
+fn floors_without_one_feature_never_exceed_the_levels_they_bound() {
+    let mut rng = ChaCha8Rng::seed_from_u64(33);
+    let (mut checked, mut positive) = (0, 0);
+    for _model in 0..10 {
+        let n = rng.random_range(4..=12);
+        let (tracker, specs) = random_tracker(&mut rng, n, Constructor::Bayesian);
+        for _frame in 0..6 {
+            let lik = random_frame(&mut rng, &specs);
+            let (usable, _) = tracker.measure(&lik).unwrap();
+            let all = (0..n)
+                .filter(|&i| usable[i].is_some())
+                .fold(0, |m: GroupMask, i| m | 1 << i);
+            let floors = tracker
+                .cell_levels(&usable)
+                .floors_without_one(all)
+                .unwrap();
+            assert_eq!(floors.len(), all.count_ones() as usize);
+            for (i, floor) in members(all).zip(floors) {
+                let exact = tracker.raw_level(all & !(1 << i), &usable);
+                assert!(
+                    floor <= exact + 1e-12 * (1.0 + exact.abs()),
+                    "n {n} without {i}: floor {floor} above level {exact}"
+                );
+                checked += 1;
+                positive += usize::from(floor > 0.0);
+            }
+        }
+    }
+    assert!(
+        checked > 200 && positive > checked / 4,
+        "{positive} of {checked}"
+    );
+    // Consonant levels give no floors: the search walks instead.
+    let (tracker, specs) = random_tracker(&mut rng, 5, Constructor::Consonant);
+    let (usable, _) = tracker.measure(&random_frame(&mut rng, &specs)).unwrap();
+    assert!(tracker
+        .cell_levels(&usable)
+        .floors_without_one(31)
+        .is_none());
+}

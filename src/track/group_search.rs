@@ -72,6 +72,12 @@ pub trait GroupLevels {
     fn cheap_pairs(&self) -> bool {
         false
     }
+    /// Lower bounds on the levels of `group` without each of its members (ascending), each at
+    /// most that group's level up to a relative 1e-12, so that the largest subset rules groups
+    /// one feature short of a maximum clique out before computing them; `None` without them.
+    fn floors_without_one(&mut self, _group: GroupMask) -> Option<Vec<f64>> {
+        None
+    }
 }
 
 /// Feature indices of a group mask, ascending.
@@ -401,18 +407,28 @@ impl<L: GroupLevels> Search<'_, L> {
             return None;
         }
         let mut top: Vec<GroupMask> = maximal
-            .into_iter()
+            .iter()
+            .copied()
             .filter(|g| g.count_ones() == omega)
             .collect();
         top.sort_by(|&a, &b| lex_cmp(a, b));
         if let Some(chosen) = self.first_lowest(&top) {
             return Some(chosen);
         }
+        let mut below = omega;
+        if omega > 2 {
+            if let Some(found) = self.one_short(&maximal, &top, omega) {
+                if !found.is_empty() {
+                    return self.first_lowest(&found);
+                }
+                below = omega - 1;
+            }
+        }
         // Every larger clique is ruled out: look for eligible groups of each size below, largest
         // first, so that the size bound prunes every branch that cannot reach it.
         let bound = self.threshold.value();
         self.cut = bound;
-        for size in (2..omega).rev() {
+        for size in (2..below).rev() {
             let mut found = Vec::new();
             self.walk(0, usable, &mut |s, g, candidates| {
                 let n = g.count_ones();
@@ -433,6 +449,48 @@ impl<L: GroupLevels> Search<'_, L> {
             }
         }
         None
+    }
+
+    /// The eligible groups one feature short of the `top` maximum cliques (size `omega`), in
+    /// lexicographic order, or `None` without floors. Every such clique is a maximal clique of
+    /// that size or a top one without a member; a floor beyond the bound rules a group out
+    /// uncomputed (the walk would compute most of its prefixes to reach it).
+    fn one_short(
+        &mut self,
+        maximal: &[GroupMask],
+        top: &[GroupMask],
+        omega: u32,
+    ) -> Option<Vec<GroupMask>> {
+        let bound = self.threshold.value();
+        // Beyond the bound by this much, a floor's rounding cannot matter.
+        let margin = TIE + 1e-9 * (1.0 + bound.abs());
+        let mut groups: Vec<GroupMask> = maximal
+            .iter()
+            .copied()
+            .filter(|g| g.count_ones() == omega - 1)
+            .collect();
+        let mut ruled_out = Vec::new();
+        for &m in top {
+            let floors = self.levels.floors_without_one(m)?;
+            for (i, floor) in members(m).zip(floors) {
+                let g = m & !(1 << i);
+                if floor > bound + margin {
+                    ruled_out.push(g);
+                } else {
+                    groups.push(g);
+                }
+            }
+        }
+        groups.sort_by(|&a, &b| lex_cmp(a, b));
+        groups.dedup();
+        groups.retain(|g| !ruled_out.contains(g));
+        let mut found = Vec::new();
+        for g in groups {
+            if self.threshold.admits(self.level(g)) {
+                found.push(g);
+            }
+        }
+        Some(found)
     }
 
     /// The eligible group of at least `min_size` features with the lowest level; ties within the
