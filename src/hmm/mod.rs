@@ -17,6 +17,7 @@
 
 mod em;
 mod init;
+mod prepare;
 mod settings;
 
 pub use settings::{AssignmentRule, HmmSettings};
@@ -27,7 +28,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use em::{em, EmissionConsts, Params, Run, Workspace};
-use init::{init_kmeanspp, init_partition, init_quantile, init_random};
+use prepare::{prepare, start, Prepared};
 
 /// Tolerance on the sum of a probability vector (initial probabilities, transition rows) accepted
 /// by [`GaussianHmm::validate`].
@@ -367,47 +368,19 @@ impl GaussianHmm {
         settings: &HmmSettings,
         seed: u64,
     ) -> Result<HmmFit, HmmError> {
-        settings.check()?;
-        if n_states == 0 {
-            return Err(HmmError::NoStates);
-        }
-        if observations.is_empty() {
-            return Err(HmmError::Empty);
-        }
-        check_finite(observations)?;
+        let Prepared {
+            mean,
+            floor,
+            k,
+            centred,
+        } = prepare(observations, n_states, settings)?;
         let n = observations.len();
-        let mean = observations.iter().sum::<f64>() / n as f64;
-        let var = observations
-            .iter()
-            .map(|y| (y - mean) * (y - mean))
-            .sum::<f64>()
-            / n as f64;
-        if !(mean.is_finite() && var.is_finite()) {
-            return Err(HmmError::DataRange);
-        }
-        let reference = if var > 0.0 {
-            var
-        } else {
-            mean.abs().max(1.0).powi(2)
-        };
-        let floor = settings.variance_floor * reference;
-
-        let k = n_states.min(count_distinct_up_to(observations, n_states));
-
-        // EM runs on centred data: the second-moment variance update loses precision when the
-        // mean is large against the spread.
-        let centred: Vec<f64> = observations.iter().map(|y| y - mean).collect();
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut ws = Workspace::new(n, k);
         let mut best: Option<(Params, Run)> = None;
         let mut tried: Vec<Params> = Vec::with_capacity(settings.restarts);
         for restart in 0..settings.restarts {
-            let init = match restart % 4 {
-                0 => init_kmeanspp(&centred, k, floor, &mut rng),
-                1 => init_partition(&centred, k, floor),
-                2 => init_quantile(&centred, k, floor),
-                _ => init_random(&centred, k, floor, &mut rng),
-            };
+            let init = start(restart, &centred, k, floor, &mut rng);
             // k-means often lands on the same clustering from different seeds; EM from an
             // identical start gives an identical result, so it is not run twice.
             if tried.contains(&init) {

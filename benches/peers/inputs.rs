@@ -1,0 +1,91 @@
+//! The inputs of evitrack's own benches, rebuilt here by the same seeded draws (benches are
+//! separate crates and cannot import each other): `benches/evidence.rs`'s C400 mass functions,
+//! `benches/hmm.rs`'s EM features and `benches/baselines.rs`'s GP samples and frames.
+
+use evitrack::evidence::{MassFunction, Subset};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// `benches/evidence.rs::inputs`: 8 mass functions of 3 focal sets of `k` of `n` elements.
+pub fn mass_functions(k: usize, n: usize, seed: u64, lowest_mass: f64) -> Vec<MassFunction> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..8)
+        .map(|_| {
+            let raw: Vec<f64> = (0..3).map(|_| rng.random_range(lowest_mass..1.0)).collect();
+            let total: f64 = raw.iter().sum();
+            let focal = raw
+                .iter()
+                .map(|m| {
+                    let idx = rand::seq::index::sample(&mut rng, n, k);
+                    let s = Subset::from_indices(n, idx.iter()).expect("indices below n");
+                    (s, m / total)
+                })
+                .collect();
+            MassFunction::new(n, focal).expect("valid mass function")
+        })
+        .collect()
+}
+
+/// `benches/hmm.rs::features`: 8 smooth features along a serpentine sweep of `n` nodes.
+pub fn em_features(n: usize) -> Vec<Vec<f64>> {
+    let side = (n as f64).sqrt().ceil() as usize;
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let noise = Normal::new(0.0, 0.02).expect("valid");
+    (0..8)
+        .map(|f| {
+            let a = 0.5 + f as f64 * 0.37;
+            (0..n)
+                .map(|i| {
+                    let (r, c) = (i / side, i % side);
+                    let c = if r % 2 == 0 { c } else { side - 1 - c };
+                    let (x, y) = (c as f64 / side as f64, r as f64 / side as f64);
+                    (a * x + (1.0 - a) * y * y).sin()
+                        + (3.0 * a * x * y).cos()
+                        + noise.sample(&mut rng)
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// `benches/baselines.rs::features_of`: `dim` smooth features of the pose plus noise.
+fn features_of(p: [f64; 2], dim: usize, rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
+    let noise = Normal::new(0.0, 0.01).expect("valid");
+    let (x, y) = (p[0] / 9.5, (p[1] - 47.5) / 9.5);
+    (0..dim)
+        .map(|f| {
+            let a = 0.5 + (f % 8) as f64 * 0.37 + (f / 8) as f64 * 0.05;
+            let v = (a * x + (1.0 - a) * y).sin() + (0.7 * a * x * y).cos() + 0.3 * a * y;
+            Some(v + noise.sample(rng))
+        })
+        .collect()
+}
+
+/// `benches/baselines.rs::Samples::mesh`: a `side` × `side` serpentine mesh, 8 features.
+pub fn gp_samples(side: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let step = 19.0 / (side - 1) as f64;
+    let poses: Vec<[f64; 2]> = (0..side * side)
+        .map(|i| {
+            let (r, c) = (i / side, i % side);
+            let c = if r % 2 == 0 { c } else { side - 1 - c };
+            [-9.5 + c as f64 * step, 38.0 + r as f64 * step]
+        })
+        .collect();
+    let rows = poses.iter().map(|&p| features_of(p, 8, &mut rng)).collect();
+    (poses, rows)
+}
+
+/// `benches/baselines.rs::frames`: `n` random poses inside the mesh and their 8 features
+/// (the bench keeps only the features; the poses give the test error here).
+pub fn gp_frames(n: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    (0..n)
+        .map(|_| {
+            let p = [rng.random_range(-9.0..9.0), rng.random_range(38.5..56.5)];
+            let row = features_of(p, 8, &mut rng);
+            (p, row)
+        })
+        .unzip()
+}
