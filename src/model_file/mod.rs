@@ -231,7 +231,7 @@ fn parse_checked<T: DeserializeOwned>(
     version: u32,
     refuse_nulls: bool,
 ) -> Result<T, ModelFileError> {
-    match probe_stamp(text) {
+    match probe_stamp(text, refuse_nulls) {
         Some(stamp) => {
             check_stamp(&stamp, method, version)?;
             serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))
@@ -265,20 +265,30 @@ fn parse_document<T: DeserializeOwned>(
     serde_json::from_str(text).map_err(|e| corrupted(e.to_string()))
 }
 
-/// The two stamp fields of a file.
+/// The two stamp fields of a file, each as the document holds it (`null` too) or absent.
 #[derive(Deserialize)]
 struct StampProbe {
+    #[serde(default, deserialize_with = "present")]
     method: Option<serde_json::Value>,
+    #[serde(default, deserialize_with = "present")]
     format_version: Option<serde_json::Value>,
+}
+
+/// A field that is present, whatever its value (`null` is `Some(Value::Null)`, as in the
+/// document).
+fn present<'de, D: serde::Deserializer<'de>>(
+    field: D,
+) -> Result<Option<serde_json::Value>, D::Error> {
+    serde_json::Value::deserialize(field).map(Some)
 }
 
 /// The stamp fields of `text` as an object, read without building the rest of the file (a
 /// model file's document would cost more than its typed parse), when the full path could not
-/// decide otherwise: an object without `null` anywhere (so there is none to refuse and the
-/// fields are present or absent, never null) that the probe reads. Otherwise `None`, and
-/// [`parse_checked`] reads the document, so every error is reported as it always was.
-fn probe_stamp(text: &str) -> Option<serde_json::Value> {
-    if !text.trim_start().starts_with('{') || text.contains("null") {
+/// decide otherwise: an object that the probe reads, without `null` anywhere when nulls are
+/// refused (so there is none to refuse). Otherwise `None`, and [`parse_checked`] reads the
+/// document, so every error is reported as it always was.
+fn probe_stamp(text: &str, refuse_nulls: bool) -> Option<serde_json::Value> {
+    if !text.trim_start().starts_with('{') || (refuse_nulls && text.contains("null")) {
         return None;
     }
     let probe: StampProbe = serde_json::from_str(text).ok()?;
@@ -407,12 +417,15 @@ mod tests {
             r#"{"format_version": 3, "method": "m", "value": 1."#,
             r#"{"format_version": 3, "method": "m", "method": "m", "value": 1.5}"#,
             r#"{"format_version": 3, "method": "m", "value": null}"#,
+            r#"{"format_version": null, "method": "m", "value": 1.5}"#,
+            r#"{"format_version": 3, "method": null, "value": 1.5}"#,
             r#"[3, "m"]"#,
             "",
         ];
-        let mut probed = 0;
+        let (mut probed, mut probed_with_nulls) = (0, 0);
         for text in texts {
-            probed += usize::from(probe_stamp(text).is_some());
+            probed += usize::from(probe_stamp(text, true).is_some());
+            probed_with_nulls += usize::from(probe_stamp(text, false).is_some());
             for refuse in [true, false] {
                 let fast = parse_checked::<File>(text, "m", 3, refuse).map_err(|e| e.to_string());
                 let whole = parse_document::<File>(text, "m", 3, refuse).map_err(|e| e.to_string());
@@ -421,6 +434,8 @@ mod tests {
         }
         // The well-formed objects without null took the probe.
         assert!(probed >= 9, "{probed}");
+        // Where nulls are taken, the objects with one took it too.
+        assert!(probed_with_nulls >= probed + 3, "{probed_with_nulls}");
         assert!(parse::<File>(texts[0], "m", 3).is_ok());
     }
 }

@@ -17,7 +17,7 @@ use super::settings::{Combine, SelectionPolicy};
 use super::tracker::{FrameEstimate, Tracker, Usable};
 use super::TrackError;
 use crate::evidence::dempster_all;
-use crate::evidence::ConflictLevel;
+use crate::evidence::{ConflictLevel, Constructor};
 
 /// What the past did in one frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,6 +38,36 @@ struct PastLevels<'a> {
     cell_max: Vec<f64>,
     /// level(m_A, C) per feature group A.
     memo: HashMap<GroupMask, f64>,
+    /// The cells of the largest `cell_max`, where [`PastLevels::proven_within`] looks for a
+    /// witness of agreement with the past.
+    peaks: [usize; PEAKS],
+}
+
+/// How many of the carried belief's highest cells witness a group's agreement with it.
+const PEAKS: usize = 4;
+
+/// The [`PEAKS`] cells of the largest values (ties: the first), padded with the last found.
+fn peak_cells(cell_max: &[f64]) -> [usize; PEAKS] {
+    let mut peaks = [0usize; PEAKS];
+    let mut count = 0;
+    for (k, &c) in cell_max.iter().enumerate() {
+        // Insertion into the short sorted list, largest first.
+        let mut at = count.min(PEAKS);
+        while at > 0 && cell_max[peaks[at - 1]] < c {
+            at -= 1;
+        }
+        if at < PEAKS {
+            let end = (count + 1).min(PEAKS);
+            peaks.copy_within(at..end - 1, at + 1);
+            peaks[at] = k;
+            count = end;
+        }
+    }
+    if count > 0 {
+        let last = peaks[count - 1];
+        peaks[count..].fill(last);
+    }
+    peaks
 }
 
 impl PastLevels<'_> {
@@ -62,6 +92,53 @@ impl PastLevels<'_> {
 }
 
 impl PastLevels<'_> {
+    /// Whether the level of a Bayesian `group` of one or two features with the past is proven
+    /// within `threshold` without computing it (`false`: not proven either way). The level is
+    /// the group's own plus −ln of its agreement with the past, Σ_t p(t)·max_t c / Σ_t p(t)
+    /// over the group's state tuples t; a single cell k of tuple t witnesses it at least
+    /// p(t)·c(k) / Π_i Σ_s contour_i(s) (every tuple's product is one term of the product of
+    /// the members' sums). The witnesses are the carried belief's highest cells; the sums stay
+    /// far from underflow, so the level computed is that of the tuple sums, and the margin
+    /// covers their rounding. The selection's graph asks this of every pair.
+    fn proven_within(&mut self, group: GroupMask, threshold: ConflictLevel) -> bool {
+        let tracker = self.cells.tracker;
+        if tracker.settings.constructor != Constructor::Bayesian || group.count_ones() > 2 {
+            return false;
+        }
+        let own = if group.count_ones() == 2 {
+            self.cells.group_level(group)
+        } else {
+            0.0
+        };
+        if !own.is_finite() {
+            return false;
+        }
+        let mut witness = 0.0f64;
+        let mut sums = 1.0;
+        for i in members(group) {
+            let Some(feature) = self.cells.usable[i].as_ref() else {
+                return false;
+            };
+            sums *= feature.contour.iter().sum::<f64>();
+        }
+        for &k in &self.peaks {
+            let Some(&(mut p)) = self.cell_max.get(k) else {
+                return false;
+            };
+            for i in members(group) {
+                let feature = self.cells.usable[i].as_ref().map(|u| &u.contour);
+                let state = tracker.to_cells[i].assignment()[k];
+                p *= feature.map_or(0.0, |c| c[state]);
+            }
+            witness = witness.max(p);
+        }
+        if !(witness >= 1e-150 && sums.is_finite()) {
+            return false;
+        }
+        let bound = own - (witness / sums).ln();
+        threshold.admits(bound + 1e-9 * (1.0 + bound))
+    }
+
     /// Σ_F m(F)·max_F c for the combination m of `group` on the cells; `None` when the group
     /// does not combine.
     fn combined_agreement(&self, group: GroupMask) -> Option<f64> {
@@ -113,13 +190,21 @@ impl GroupLevels for PastLevels<'_> {
 }
 
 /// Groups that hold the carried belief (bit `past`), seen as groups of the features beside it.
-struct BesidePast<'l, L> {
+struct BesidePast<'l, L, P> {
     levels: &'l mut L,
     past: GroupMask,
+    /// Whether a group of features is proven within the threshold with the past, without its
+    /// level.
+    proven: P,
 }
 
-impl<L: GroupLevels> GroupLevels for BesidePast<'_, L> {
+impl<L: GroupLevels, P: FnMut(&mut L, GroupMask) -> bool> GroupLevels for BesidePast<'_, L, P> {
+    /// A pair proven within the threshold reports 0, a lower bound of its level: the conflict
+    /// graph only asks whether a pair is admitted.
     fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        if (self.proven)(self.levels, 1 << i | 1 << j) {
+            return 0.0;
+        }
         self.levels.group_level(1 << i | 1 << j | self.past)
     }
 
@@ -152,9 +237,24 @@ pub fn group_beside_past(
     policy: SelectionPolicy,
     threshold: ConflictLevel,
 ) -> (GroupMask, f64) {
+    group_beside_past_proven(levels, usable, past, policy, threshold, |_, _| false)
+}
+
+/// [`group_beside_past`], with `proven` telling which groups of one or two features are within
+/// the threshold with the past without their level (it must never say so of one that is not).
+fn group_beside_past_proven<L: GroupLevels>(
+    levels: &mut L,
+    usable: GroupMask,
+    past: usize,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+    mut proven: impl FnMut(&mut L, GroupMask) -> bool,
+) -> (GroupMask, f64) {
     let past_bit: GroupMask = 1 << past;
     let beside = members(usable)
-        .filter(|&i| threshold.admits(levels.group_level(1 << i | past_bit)))
+        .filter(|&i| {
+            proven(levels, 1 << i) || threshold.admits(levels.group_level(1 << i | past_bit))
+        })
         .fold(0, |m: GroupMask, i| m | 1 << i);
     let features = match beside.count_ones() {
         0 => return (0, 0.0),
@@ -163,6 +263,7 @@ pub fn group_beside_past(
             let mut view = BesidePast {
                 levels: &mut *levels,
                 past: past_bit,
+                proven,
             };
             let choice = select_group(&mut view, past, beside, policy, threshold);
             match choice.chosen {
@@ -261,6 +362,7 @@ impl Tracker {
         let mut levels = PastLevels {
             cells: self.cell_levels(&usable),
             past: f,
+            peaks: peak_cells(&cell_max),
             cell_max,
             memo: HashMap::new(),
         };
@@ -268,12 +370,14 @@ impl Tracker {
             // Every usable feature and the past, whatever their conflict.
             (usable_mask, levels.group_level(usable_mask | 1 << f))
         } else {
-            let (features, level) = group_beside_past(
+            let threshold = self.settings.conflict_threshold;
+            let (features, level) = group_beside_past_proven(
                 &mut levels,
                 usable_mask,
                 f,
                 self.settings.selection,
-                self.settings.conflict_threshold,
+                threshold,
+                |levels, group| levels.proven_within(group, threshold),
             );
             let own = alone.group.iter().fold(0, |m: GroupMask, &i| m | 1 << i);
             if !past_outweighs(Some((own, alone.flags.fallback)), features, past_weight) {
@@ -341,129 +445,5 @@ impl Tracker {
 }
 
 #[cfg(test)]
-mod tests {
-    use crate::evidence::Constructor;
-    use crate::track::tracking::tests::tiny_tracker;
-
-    fn frame() -> Vec<Option<Vec<f64>>> {
-        vec![
-            Some(vec![0.3, 0.7]),
-            Some(vec![0.2, 0.5, 0.3]),
-            Some(vec![0.6, 0.4]),
-        ]
-    }
-
-    #[test]
-    fn a_vacuous_past_joins_and_changes_nothing() {
-        for constructor in [Constructor::Bayesian, Constructor::Consonant] {
-            let tracker = tiny_tracker(constructor);
-            let alone = tracker.track(&frame()).unwrap();
-            let with = tracker.track_with_past(&frame(), &[1.0; 6], 1.0).unwrap();
-            assert!(with.past_joined, "{constructor:?}");
-            assert_eq!(with.frame.group, alone.group);
-            assert!(
-                (with.frame.conflict_level.unwrap() - alone.conflict_level.unwrap()).abs() < 1e-12
-            );
-            let (a, b) = (alone.estimate.unwrap(), with.frame.estimate.unwrap());
-            assert!(
-                (a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12,
-                "{a:?} {b:?}"
-            );
-        }
-    }
-
-    #[test]
-    fn the_past_level_is_the_conflict_of_the_combination_with_the_past() {
-        // The carried belief here is Bayesian-free and consonant: contour 1 on poses 4, 5 and
-        // 0.25 elsewhere, i.e. mass 0.75 on {4, 5} and 0.25 on Θ. Adding it multiplies the
-        // agreeing mass by Σ_F m(F) max_F c, checked against Dempster's rule on the poses.
-        let tracker = tiny_tracker(Constructor::Bayesian);
-        let carried = [0.25, 0.25, 0.25, 0.25, 1.0, 1.0];
-        let with = tracker.track_with_past(&frame(), &carried, 1.0).unwrap();
-        assert!(with.past_joined);
-        let alone = tracker.track(&frame()).unwrap();
-        // Relative plausibility of the frame's combination per pose, times the carried contour.
-        let pl = &alone.plausibility;
-        let agree: f64 =
-            pl.iter().zip(&carried).map(|(p, c)| p * c).sum::<f64>() / pl.iter().sum::<f64>();
-        // Every pose is its own cell here only if the features separate them: poses 4 and 5
-        // differ in feature 2, and so on; so max over a cell is the pose's own value.
-        let expected = alone.conflict_level.unwrap() - agree.ln();
-        assert!(
-            (with.frame.conflict_level.unwrap() - expected).abs() < 1e-12,
-            "{:?} vs {expected}",
-            with.frame.conflict_level
-        );
-        let total: f64 = pl.iter().zip(&carried).map(|(p, c)| p * c).sum();
-        for (k, w) in with.frame.plausibility.iter().enumerate() {
-            assert!((w - pl[k] * carried[k] / total).abs() < 1e-12);
-        }
-    }
-
-    #[test]
-    fn the_tuple_sums_give_the_combinations_agreement_with_the_past() {
-        use super::PastLevels;
-        use rand::{Rng, SeedableRng};
-        let tracker = tiny_tracker(Constructor::Bayesian);
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        for round in 0..50 {
-            // Some states impossible now and then, a past from sharp to vacuous.
-            let mut draw = |n: usize| -> Option<Vec<f64>> {
-                Some((0..n).map(|_| rng.random::<f64>().powi(3)).collect())
-            };
-            let lik = vec![draw(2), draw(3), draw(2)];
-            let carried: Vec<f64> = (0..6).map(|_| rng.random::<f64>().powi(2)).collect();
-            let (usable, _) = tracker.measure(&lik).unwrap();
-            let mut cell_max = vec![0.0f64; tracker.cell_count()];
-            for (&u, &c) in tracker.cell_of.iter().zip(&carried) {
-                cell_max[u] = cell_max[u].max(c);
-            }
-            let mut levels = PastLevels {
-                cells: tracker.cell_levels(&usable),
-                past: 3,
-                cell_max: cell_max.clone(),
-                memo: std::collections::HashMap::new(),
-            };
-            for group in 1..8u64 {
-                let fast = levels.cells.bayesian_agreement(group, &cell_max).unwrap();
-                let combined = levels.combined_agreement(group).unwrap_or(0.0);
-                assert!(
-                    (fast - combined).abs() <= 1e-14 * combined.max(1e-300),
-                    "round {round}, group {group}: {fast} vs {combined}"
-                );
-            }
-        }
-        // Consonant functions take the combination.
-        let tracker = tiny_tracker(Constructor::Consonant);
-        let (usable, _) = tracker.measure(&frame()).unwrap();
-        let mut cells = tracker.cell_levels(&usable);
-        assert_eq!(
-            cells.bayesian_agreement(0b11, &vec![1.0; tracker.cell_count()]),
-            None
-        );
-    }
-
-    #[test]
-    fn a_past_in_total_conflict_is_dropped_and_the_frame_is_followed() {
-        let mut tracker = tiny_tracker(Constructor::Bayesian);
-        tracker.settings.conflict_threshold = crate::evidence::ConflictLevel::Finite(5.0);
-        // Only pose 0 is plausible for the frame; the past says poses 4 and 5, nothing else.
-        let lik = vec![
-            Some(vec![1.0, 0.0]),
-            Some(vec![1.0, 0.0, 0.0]),
-            Some(vec![1.0, 0.0]),
-        ];
-        let with = tracker
-            .track_with_past(&lik, &[0.0, 0.0, 0.0, 0.0, 1.0, 1.0], 1.0)
-            .unwrap();
-        assert!(!with.past_joined);
-        assert_eq!(with.frame.group, vec![0, 1, 2]);
-        assert_eq!(with.frame.estimate, tracker.track(&lik).unwrap().estimate);
-        // The wrong length and the splitting policy are refused with a message.
-        let short = tracker.track_with_past(&lik, &[1.0; 3], 1.0).unwrap_err();
-        assert!(
-            short.to_string().contains("one value per sample pose"),
-            "{short}"
-        );
-    }
-}
+#[path = "past_tests.rs"]
+mod tests;

@@ -95,15 +95,44 @@ impl Refinement {
                 ((p[0] - lo[0]) / step) as isize,
                 ((p[1] - lo[1]) / step) as isize,
             );
+            let (i0, i1) = ((ci - span).max(0), (ci + span + 1).min(nx as isize));
+            if i0 >= i1 {
+                continue;
+            }
             for j in (cj - span).max(0)..(cj + span + 1).min(ny as isize) {
-                for i in (ci - span).max(0)..(ci + span + 1).min(nx as isize) {
-                    let x = at(i as usize, j as usize);
+                // Along a row the distance only grows away from the pose: the points within
+                // the reach are one run, found from the pose outwards (the same points and
+                // distances as a scan of the whole row of the box).
+                let row = j as usize;
+                let mut first_right = ci.clamp(i0, i1 - 1);
+                while first_right > i0 && at((first_right - 1) as usize, row)[0] >= p[0] {
+                    first_right -= 1;
+                }
+                while first_right < i1 && at(first_right as usize, row)[0] < p[0] {
+                    first_right += 1;
+                }
+                // Claims point i when within the reach and nearer than its owner; false
+                // beyond the reach.
+                let mut claim = |i: isize| {
+                    let x = at(i as usize, row);
                     let d2 = d2_of(x, *p);
-                    let cell = &mut owner[j as usize * nx + i as usize];
-                    if d2 <= reach * reach
-                        && (*cell == u32::MAX || d2 < d2_of(x, poses[*cell as usize]))
-                    {
+                    if d2 > reach * reach || d2.is_nan() {
+                        return false;
+                    }
+                    let cell = &mut owner[row * nx + i as usize];
+                    if *cell == u32::MAX || d2 < d2_of(x, poses[*cell as usize]) {
                         *cell = s as u32;
+                    }
+                    true
+                };
+                for i in first_right..i1 {
+                    if !claim(i) {
+                        break;
+                    }
+                }
+                for i in (i0..first_right).rev() {
+                    if !claim(i) {
+                        break;
                     }
                 }
             }
