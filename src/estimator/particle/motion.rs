@@ -5,7 +5,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
-use super::likelihood::{exp_nonpositive_in_place, FrameLikelihood};
+use super::likelihood::{exp, FrameLikelihood};
 use super::radius::WeightedRadius;
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
@@ -26,8 +26,7 @@ pub(super) struct FilterMotion<'a> {
     norms: Vec<f64>,
     uniforms: Vec<f64>,
     /// Scratch kept between frames, so that a frame allocates nothing per particle: the
-    /// frame's likelihood terms and its blocks' maps, each particle's log-likelihood (then its
-    /// weight factor), the radius's sort and the resampled particles.
+    /// frame's likelihood terms and its blocks' maps, each particle's log-likelihood, the radius's sort and the resampled particles.
     likelihood: FrameLikelihood,
     logs: Vec<f64>,
     radius: WeightedRadius,
@@ -103,11 +102,9 @@ impl<'a> FilterMotion<'a> {
         if !max.is_finite() {
             return None;
         }
-        self.logs.iter_mut().for_each(|l| *l -= max);
-        exp_nonpositive_in_place(&mut self.logs);
         let mut total = 0.0;
-        for (w, factor) in self.weights.iter_mut().zip(&self.logs) {
-            *w *= factor;
+        for (w, l) in self.weights.iter_mut().zip(&self.logs) {
+            *w *= exp(l - max);
             total += *w;
         }
         if !(total > 0.0 && total.is_finite()) {

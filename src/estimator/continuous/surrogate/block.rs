@@ -33,7 +33,8 @@ impl Grid {
         let mut t = [0.0; 2];
         for k in 0..2 {
             let x = ((q[k] - self.origin[k]) / self.step[k]).clamp(0.0, (self.nodes[k] - 1) as f64);
-            let c = (x.floor() as usize).min(self.nodes[k] - 2);
+            // x ≥ 0 (NaN gives 0 either way): truncation is the floor, without a call.
+            let c = (x as usize).min(self.nodes[k] - 2);
             cell[k] = c;
             t[k] = x - c as f64;
         }
