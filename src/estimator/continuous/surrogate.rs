@@ -4,6 +4,8 @@
 //! noise and smoothness: the barycentre is a hundred times less noisy, relative to its range,
 //! than a size function, and a shared kernel over-smooths it.
 
+mod block;
+
 use std::sync::Arc;
 
 use nalgebra::DMatrix;

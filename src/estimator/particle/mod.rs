@@ -21,7 +21,9 @@
 //!   same estimates.
 
 mod learn;
+mod likelihood;
 mod motion;
+mod radius;
 
 use learn::{DEFAULT_MOTION_NOISE, DEFAULT_OUTLIER_SHARE};
 
@@ -256,7 +258,9 @@ impl ParticleFilter {
     }
 
     /// log p(features | q) with the frame's usable `values`; `constants` from
-    /// [`ParticleFilter::likelihood_constants`].
+    /// [`ParticleFilter::likelihood_constants`]: the formula the blocks of `likelihood`
+    /// reproduce.
+    #[cfg(test)]
     fn log_likelihood(
         &self,
         values: &[Option<f64>],
@@ -379,6 +383,52 @@ mod tests {
             values[k % 4] = None;
             let fast = filter.log_likelihood(&values, q, &mut mapped, (&norms, &uniforms));
             assert_eq!(fast.to_bits(), direct(&values, q).to_bits(), "pose {q:?}");
+        }
+    }
+
+    #[test]
+    fn the_blocked_likelihood_is_the_formula_bit_for_bit() {
+        use rand::{Rng, SeedableRng};
+        let maps = crate::estimator::test_maps::fitted_continuous(12, 8, 20, 0.01, false, 3);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        // 600 particles: blocks of 256, 256 and 88; some far outside the grid (clamped maps,
+        // terms at their floor).
+        let particles: Vec<[f64; 2]> = (0..600)
+            .map(|k| match k % 10 {
+                0 => [rng.random_range(-60.0..60.0), rng.random_range(0.0..100.0)],
+                _ => [rng.random_range(-9.5..9.5), rng.random_range(38.0..57.0)],
+            })
+            .collect();
+        // ε = 0: far particles' terms at the formula's floor MIN_POSITIVE; ε = 1: no Gaussian part.
+        for (eps, missing) in [(0.05, None), (0.0, Some(3)), (0.2, Some(11)), (1.0, None)] {
+            let settings = ParticleSettings {
+                outlier_share: Some(eps),
+                ..ParticleSettings::default()
+            };
+            let filter =
+                ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps.clone(), 1)
+                    .unwrap();
+            let (norms, uniforms) = filter.likelihood_constants();
+            let mut values: Vec<Option<f64>> = filter
+                .maps
+                .feature_map([1.0, 46.0])
+                .into_iter()
+                .map(Some)
+                .collect();
+            if let Some(i) = missing {
+                values[i] = None;
+            }
+            let mut frame = likelihood::FrameLikelihood::default();
+            let scales = filter.maps.residual_scales();
+            frame.prepare(&values, scales, (&norms, &uniforms), eps);
+            let mut logs = Vec::new();
+            frame.log_likelihoods(&filter.maps, &particles, &mut logs);
+            assert_eq!(logs.len(), particles.len());
+            let mut mapped = vec![0.0; 12];
+            for (&q, fast) in particles.iter().zip(&logs) {
+                let direct = filter.log_likelihood(&values, q, &mut mapped, (&norms, &uniforms));
+                assert_eq!(fast.to_bits(), direct.to_bits(), "ε {eps} at {q:?}");
+            }
         }
     }
 

@@ -5,6 +5,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
+use super::likelihood::{exp, FrameLikelihood};
+use super::radius::WeightedRadius;
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::VelocityLine;
@@ -23,12 +25,11 @@ pub(super) struct FilterMotion<'a> {
     /// Per feature: σ·√(2π) and ε/W, the likelihood's constants.
     norms: Vec<f64>,
     uniforms: Vec<f64>,
-    /// Scratch kept between frames, so that a frame allocates nothing per particle: the mapped
-    /// features of one particle, each particle's log-likelihood, (distance, weight) pairs and
-    /// the resampled particles.
-    mapped: Vec<f64>,
+    /// Scratch kept between frames, so that a frame allocates nothing per particle: the
+    /// frame's likelihood terms and its blocks' maps, each particle's log-likelihood, the radius's sort and the resampled particles.
+    likelihood: FrameLikelihood,
     logs: Vec<f64>,
-    by_distance: Vec<(f64, f64)>,
+    radius: WeightedRadius,
     resampled: Vec<[f64; 2]>,
 }
 
@@ -54,11 +55,11 @@ impl<'a> FilterMotion<'a> {
             weights: vec![1.0 / n as f64; n],
             last: None,
             line: VelocityLine::new(filter.file.velocity_frames),
-            mapped: vec![0.0; norms.len()],
+            likelihood: FrameLikelihood::default(),
             norms,
             uniforms,
             logs: Vec::with_capacity(n),
-            by_distance: Vec::with_capacity(n),
+            radius: WeightedRadius::with_capacity(n),
             resampled: Vec::with_capacity(n),
         }
     }
@@ -89,24 +90,21 @@ impl<'a> FilterMotion<'a> {
     /// Weights by the frame's likelihood; −ln of the predictive likelihood (the detection
     /// score), or `None` when every particle's likelihood underflows (the weights then stay).
     fn update(&mut self, values: &[Option<f64>]) -> Option<f64> {
-        self.logs.clear();
-        for &q in &self.particles {
-            let l = self.filter.log_likelihood(
-                values,
-                q,
-                &mut self.mapped,
-                (&self.norms, &self.uniforms),
-            );
-            self.logs.push(l);
-        }
-        let logs = &self.logs;
-        let max = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let maps = &self.filter.maps;
+        self.likelihood.prepare(
+            values,
+            maps.residual_scales(),
+            (&self.norms, &self.uniforms),
+            self.filter.file.outlier_share,
+        );
+        (self.likelihood).log_likelihoods(maps, &self.particles, &mut self.logs);
+        let max = self.logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         if !max.is_finite() {
             return None;
         }
         let mut total = 0.0;
-        for (w, l) in self.weights.iter_mut().zip(logs) {
-            *w *= (l - max).exp();
+        for (w, l) in self.weights.iter_mut().zip(&self.logs) {
+            *w *= exp(l - max);
             total += *w;
         }
         if !(total > 0.0 && total.is_finite()) {
@@ -146,21 +144,7 @@ impl<'a> FilterMotion<'a> {
             mean[0] += w * p[0];
             mean[1] += w * p[1];
         }
-        self.by_distance.clear();
-        self.by_distance.extend(
-            (self.particles.iter().zip(&self.weights))
-                .map(|(p, &w)| ((p[0] - mean[0]).hypot(p[1] - mean[1]), w)),
-        );
-        self.by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut held = 0.0;
-        let radius = self
-            .by_distance
-            .iter()
-            .find(|(_, w)| {
-                held += w;
-                held >= 0.9
-            })
-            .map_or(0.0, |(d, _)| *d);
+        let radius = (self.radius).radius(&self.particles, &self.weights, mean, 0.9);
         (mean, radius)
     }
 
