@@ -27,6 +27,7 @@ use std::cell::RefCell;
 use std::collections::HashMap;
 
 use super::frame::Frame;
+use super::grid_past::PastGrid;
 use super::surrogate::GridView;
 use crate::track::{members, GroupMask};
 
@@ -83,10 +84,20 @@ pub(super) struct GridLevel {
 /// Per kept node: Σz², Σz∂ₓz, Σz∂ᵧz, Σ(∂ₓz)², Σ∂ₓz∂ᵧz, Σ(∂ᵧz)², Σl.
 type Sums = [f64; 7];
 
+/// One member of a group at a node: a feature's value and 1/σ, a missing feature, the past.
+#[derive(Clone, Copy)]
+enum Term {
+    Feature { i: usize, y: f64, inv: f64 },
+    Missing,
+    Past,
+}
+
 /// A group's kept nodes (those whose bound is within the cut 2T) and their sums.
 struct Kept {
     nodes: Vec<u32>,
     sums: Vec<Sums>,
+    /// The cut they were kept within.
+    cut: f64,
 }
 
 /// One frame's grid levels so far.
@@ -100,9 +111,9 @@ pub(super) struct GridCache {
     levels: HashMap<GroupMask, (GridLevel, f64)>,
     /// The same for the discounted levels of [`super::rules`].
     pub(super) discounted: HashMap<GroupMask, (GridLevel, f64)>,
-    /// The carried belief's (residual, slopes) per node, NaN until first needed (empty: none
-    /// yet): every group with the past reads the same terms.
-    past_nodes: RefCell<Vec<[f64; 3]>>,
+    /// The carried belief's terms and block bounds, block by block as groups with the past
+    /// visit them: every group with the past reads the same terms.
+    pub(super) past: RefCell<PastGrid>,
     /// The carried belief's χ² term at each sample pose (empty until first needed).
     pub(super) past_samples: RefCell<Vec<f64>>,
 }
@@ -112,7 +123,7 @@ impl GridCache {
         self.kept.clear();
         self.levels.clear();
         self.discounted.clear();
-        self.past_nodes.get_mut().clear();
+        self.past.get_mut().clear();
         self.past_samples.get_mut().clear();
     }
 }
@@ -153,7 +164,10 @@ impl Frame<'_> {
             .filter(|_| finite && parent != 0)
         {
             Some(p) => self.extend(p, top, cut),
-            None => self.scan(group, cut, !finite),
+            None => match self.with_past_subgroup(group, cut).filter(|_| finite) {
+                Some((sub, i)) => self.refine(sub, i, group, cut),
+                None => self.scan(group, cut, !finite),
+            },
         };
         let level = self.minimum(&kept);
         if finite {
@@ -194,25 +208,48 @@ impl Frame<'_> {
 
     /// Adds member `i`'s terms at node `n` to `sums` (the carried belief is bit `features`).
     fn add_term(&self, sums: &mut Sums, i: usize, n: usize) {
+        self.add(sums, self.term(i), n);
+    }
+
+    /// What member `i` adds at a node, read once per group.
+    fn term(&self, i: usize) -> Term {
+        if i >= self.values.len() {
+            return Term::Past;
+        }
+        match self.values[i] {
+            Some(y) => Term::Feature {
+                i,
+                y,
+                inv: 1.0 / self.model.file.residual_scales[i],
+            },
+            None => Term::Missing,
+        }
+    }
+
+    /// Adds `term` at node `n` to `sums`.
+    #[inline]
+    fn add(&self, sums: &mut Sums, term: Term, n: usize) {
         let (_, step, _, table) = self.model.surrogate.grid();
         let d = self.values.len();
-        let (z, gx, gy) = if i < d {
-            let Some(y) = self.values[i] else {
-                sums[6] = f64::INFINITY;
-                return;
-            };
-            let inv = 1.0 / self.model.file.residual_scales[i];
-            let [f, fx, fy, _] = table[n * d + i];
-            ((y - f) * inv, -fx * inv, -fy * inv)
-        } else {
-            let Some([r, gx, gy]) = self.past_node(n) else {
-                return;
-            };
-            if r == f64::INFINITY {
+        let (z, gx, gy) = match term {
+            Term::Feature { i, y, inv } => {
+                let [f, fx, fy, _] = table[n * d + i];
+                ((y - f) * inv, -fx * inv, -fy * inv)
+            }
+            Term::Missing => {
                 sums[6] = f64::INFINITY;
                 return;
             }
-            (r, gx, gy)
+            Term::Past => {
+                let Some([r, gx, gy]) = self.past_node(n) else {
+                    return;
+                };
+                if r == f64::INFINITY {
+                    sums[6] = f64::INFINITY;
+                    return;
+                }
+                (r, gx, gy)
+            }
         };
         let reach = 0.5 * (gx.abs() * step[0] + gy.abs() * step[1]);
         let alone = (z.abs() - reach).max(0.0);
@@ -223,30 +260,6 @@ impl Frame<'_> {
         sums[4] += gx * gy;
         sums[5] += gy * gy;
         sums[6] += alone * alone;
-    }
-
-    /// The carried belief's residual √(−2 ln c) and its slopes at node `n` (residual +∞ where
-    /// c is 0), computed once per frame; `None` without a past.
-    fn past_node(&self, n: usize) -> Option<[f64; 3]> {
-        let past = self.past.as_ref()?;
-        let mut cache = self.grid.past_nodes.borrow_mut();
-        if cache.is_empty() {
-            let (_, _, nodes, _) = self.model.surrogate.grid();
-            cache.resize(nodes[0] * nodes[1], [f64::NAN; 3]);
-        }
-        if !cache[n][0].is_nan() {
-            return Some(cache[n]);
-        }
-        let (chi2, gradient) = past.chi2(self.node_pose(n));
-        let terms = if chi2.is_finite() {
-            let r = chi2.sqrt();
-            let half = if r > 0.0 { 0.5 / r } else { 0.0 };
-            [r, gradient[0] * half, gradient[1] * half]
-        } else {
-            [f64::INFINITY, 0.0, 0.0]
-        };
-        cache[n] = terms;
-        Some(terms)
     }
 
     /// Per block and feature, the lower bound of l_i over the block (0 for a missing value).
@@ -295,18 +308,26 @@ impl Frame<'_> {
         let mut kept = Kept {
             nodes: Vec::new(),
             sums: Vec::new(),
+            cut,
         };
+        let with_past = members(group).any(|i| i >= d) && self.past.is_some();
+        let terms: Vec<Term> = members(group).map(|i| self.term(i)).collect();
         for (bound, b) in passing {
             if bound > cut {
                 break;
+            }
+            // The past's bound after the features', as a node adds them: a block it drops
+            // keeps no node.
+            if with_past && bound + self.past_bound(b) > cut {
+                continue;
             }
             let (bc, br) = (b % counts[0], b / counts[0]);
             for r in br * BLOCK..((br + 1) * BLOCK).min(nodes[1]) {
                 for c in bc * BLOCK..((bc + 1) * BLOCK).min(nodes[0]) {
                     let n = r * nodes[0] + c;
                     let mut sums = [0.0; 7];
-                    let within = members(group).all(|i| {
-                        self.add_term(&mut sums, i, n);
+                    let within = terms.iter().all(|&term| {
+                        self.add(&mut sums, term, n);
                         sums[6] <= cut
                     });
                     if within {
@@ -322,15 +343,71 @@ impl Frame<'_> {
         kept
     }
 
+    /// The fewest kept nodes (within `cut` or a wider cut) of a group with the past that is
+    /// `group` less one feature `i`, and `i`, when `group` has the past and such a group is
+    /// kept. Its nodes hold every node `group` keeps: a node's sum only grows as a term is
+    /// added.
+    fn with_past_subgroup(&self, group: GroupMask, cut: f64) -> Option<(&Kept, usize)> {
+        let past = 1 << self.values.len();
+        if self.past.is_none() || group & past == 0 || self.grid.kept.is_empty() {
+            return None;
+        }
+        members(group & !past)
+            .filter_map(|i| Some((self.grid.kept.get(&(group & !(1 << i)))?, i)))
+            .filter(|(k, _)| k.cut >= cut)
+            .min_by_key(|(k, _)| k.nodes.len())
+    }
+
+    /// The nodes of `sub` (`group` less feature `i`, nodes in the grid scan's order) that
+    /// `group` keeps within `cut`, with their sums: what [`Self::scan`] keeps, in the same
+    /// order, from fewer nodes.
+    fn refine(&self, sub: &Kept, i: usize, group: GroupMask, cut: f64) -> Kept {
+        let terms: Vec<Term> = members(group).map(|i| self.term(i)).collect();
+        let added = self.term(i);
+        // The sub-group's Σl plus l_i is the node's own Σl up to rounding in another order
+        // (below 1e-13 relative for 64 terms): beyond this, the node's own sum is beyond `cut`.
+        let beyond = cut * (1.0 + 1e-12);
+        let mut out = Kept {
+            nodes: Vec::new(),
+            sums: Vec::new(),
+            cut,
+        };
+        for (&n, s) in sub.nodes.iter().zip(&sub.sums) {
+            let mut one = [0.0; 7];
+            self.add(&mut one, added, n as usize);
+            if s[6] + one[6] > beyond {
+                continue;
+            }
+            // The sums in the group's own order, as the scan adds them.
+            let mut sums = [0.0; 7];
+            let within = terms.iter().all(|&term| {
+                self.add(&mut sums, term, n as usize);
+                sums[6] <= cut
+            });
+            if within {
+                out.nodes.push(n);
+                out.sums.push(sums);
+            }
+        }
+        out
+    }
+
     /// The kept nodes of the parent `kept` with member `i` added, within `cut`.
     fn extend(&self, kept: &Kept, i: usize, cut: f64) -> Kept {
         let mut out = Kept {
             nodes: Vec::new(),
             sums: Vec::new(),
+            cut,
         };
+        let past = i >= self.values.len() && self.past.is_some();
+        let term = self.term(i);
         for (&n, s) in kept.nodes.iter().zip(&kept.sums) {
+            // The past's block bound first: the past's terms only where a node may stay.
+            if past && s[6] + self.past_bound(self.block_of(n as usize)) > cut {
+                continue;
+            }
             let mut sums = *s;
-            self.add_term(&mut sums, i, n as usize);
+            self.add(&mut sums, term, n as usize);
             if sums[6] <= cut {
                 out.nodes.push(n);
                 out.sums.push(sums);
@@ -474,3 +551,7 @@ mod tests {
 #[cfg(test)]
 #[path = "grid_levels_tests.rs"]
 mod search_tests;
+
+#[cfg(test)]
+#[path = "grid_past_tests.rs"]
+mod past_tests;

@@ -27,6 +27,7 @@ pub(crate) use checks::{check_settings, check_temporal_settings};
 mod file;
 mod frame;
 mod grid_levels;
+mod grid_past;
 mod grid_share;
 mod rules;
 mod surrogate;
