@@ -7,25 +7,11 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::{
     Centre, CentreSettings, Gp, GpSettings, Knn, KnnSettings, Labelled, PoseEstimator, TrainingSet,
 };
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 use std::time::Duration;
 
-/// `dim` smooth features of the pose, each with noise of standard deviation 0.01.
-fn features_of(p: [f64; 2], dim: usize, rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
-    let noise = Normal::new(0.0, 0.01).expect("valid");
-    let (x, y) = (p[0] / 9.5, (p[1] - 47.5) / 9.5);
-    (0..dim)
-        .map(|f| {
-            // Past the 8th, slopes fold back into the same range: distinct but alike features.
-            let a = 0.5 + (f % 8) as f64 * 0.37 + (f / 8) as f64 * 0.05;
-            let v = (a * x + (1.0 - a) * y).sin() + (0.7 * a * x * y).cos() + 0.3 * a * y;
-            Some(v + noise.sample(rng))
-        })
-        .collect()
-}
+#[path = "common/inputs.rs"]
+mod inputs;
 
 /// A `side` × `side` mesh in serpentine order and its features.
 struct Samples {
@@ -41,19 +27,7 @@ impl Samples {
 
     /// A mesh with `dim` features per sample.
     fn mesh_of(side: usize, dim: usize) -> Self {
-        let mut rng = ChaCha8Rng::seed_from_u64(11);
-        let step = 19.0 / (side - 1) as f64;
-        let poses: Vec<[f64; 2]> = (0..side * side)
-            .map(|i| {
-                let (r, c) = (i / side, i % side);
-                let c = if r % 2 == 0 { c } else { side - 1 - c };
-                [-9.5 + c as f64 * step, 38.0 + r as f64 * step]
-            })
-            .collect();
-        let rows = poses
-            .iter()
-            .map(|&p| features_of(p, dim, &mut rng))
-            .collect();
+        let (poses, rows) = inputs::mesh(side, dim);
         Self {
             names: (0..dim).map(|i| format!("f{i}")).collect(),
             poses,
@@ -74,13 +48,7 @@ impl Samples {
 
 /// Feature rows (`dim` features) of random poses inside the mesh.
 fn frames(n: usize, dim: usize) -> Vec<Vec<Option<f64>>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(12);
-    (0..n)
-        .map(|_| {
-            let p = [rng.random_range(-9.0..9.0), rng.random_range(38.5..56.5)];
-            features_of(p, dim, &mut rng)
-        })
-        .collect()
+    inputs::frames(n, dim).1
 }
 
 /// Estimates frames in turn, one per iteration.

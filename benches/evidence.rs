@@ -7,29 +7,12 @@
 //! takes frames of at most 20 elements and non-dogmatic functions, so it is timed on the same
 //! shape scaled to 20 elements (8 × 3 focal sets of 10 of 20, discounted by 0.9).
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use evitrack::evidence::{combine_all, dempster_all, discount_all, MassFunction, Rule, Subset};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
+use evitrack::evidence::{combine_all, dempster_all, discount_all, MassFunction, Rule};
 use std::hint::black_box;
 
-fn inputs(k: usize, n: usize, seed: u64, lowest_mass: f64) -> Vec<MassFunction> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    (0..8)
-        .map(|_| {
-            let raw: Vec<f64> = (0..3).map(|_| rng.random_range(lowest_mass..1.0)).collect();
-            let total: f64 = raw.iter().sum();
-            let focal = raw
-                .iter()
-                .map(|m| {
-                    let idx = rand::seq::index::sample(&mut rng, n, k);
-                    let s = Subset::from_indices(n, idx.iter()).expect("indices below n");
-                    (s, m / total)
-                })
-                .collect();
-            MassFunction::new(n, focal).expect("valid mass function")
-        })
-        .collect()
-}
+#[path = "common/inputs.rs"]
+mod inputs;
+use inputs::mass_functions as inputs;
 
 fn combine_and_contour(fs: &[MassFunction]) -> (f64, Option<Vec<f64>>) {
     let c = dempster_all(black_box(fs)).expect("same frames");

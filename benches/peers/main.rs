@@ -5,6 +5,7 @@
 //! Not a criterion bench: `bench = false` keeps it out of `cargo bench`, and nothing of it runs
 //! in `cargo test`.
 
+#[path = "../common/inputs.rs"]
 mod inputs;
 
 use std::hint::black_box;
@@ -84,8 +85,8 @@ struct GpInputs {
 
 impl GpInputs {
     fn new() -> Self {
-        let (poses, rows) = inputs::gp_samples(GP_SIDE);
-        let (test_poses, test_rows) = inputs::gp_frames(GP_FRAMES);
+        let (poses, rows) = inputs::mesh(GP_SIDE, 8);
+        let (test_poses, test_rows) = inputs::frames(GP_FRAMES, 8);
         Self {
             names: (0..8).map(|i| format!("f{i}")).collect(),
             poses,

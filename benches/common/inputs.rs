@@ -1,13 +1,16 @@
-//! The inputs of evitrack's own benches, rebuilt here by the same seeded draws (benches are
-//! separate crates and cannot import each other): `benches/evidence.rs`'s C400 mass functions,
-//! `benches/hmm.rs`'s EM features and `benches/baselines.rs`'s GP samples and frames.
+//! The seeded inputs of the benches, one copy included by each (`#[path]`): the C400 mass
+//! functions of `evidence`, the EM features of `hmm`, the samples and frames of `baselines`, and
+//! the peer comparison (`peers`), which must time exactly what the benches time.
+
+// Each bench uses its own part.
+#![allow(dead_code)]
 
 use evitrack::evidence::{MassFunction, Subset};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-/// `benches/evidence.rs::inputs`: 8 mass functions of 3 focal sets of `k` of `n` elements.
+/// 8 mass functions of 3 focal sets of `k` of `n` elements.
 pub fn mass_functions(k: usize, n: usize, seed: u64, lowest_mass: f64) -> Vec<MassFunction> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..8)
@@ -27,7 +30,7 @@ pub fn mass_functions(k: usize, n: usize, seed: u64, lowest_mass: f64) -> Vec<Ma
         .collect()
 }
 
-/// `benches/hmm.rs::features`: 8 smooth features along a serpentine sweep of `n` nodes.
+/// 8 smooth features along a serpentine sweep of `n` nodes.
 pub fn em_features(n: usize) -> Vec<Vec<f64>> {
     let side = (n as f64).sqrt().ceil() as usize;
     let mut rng = ChaCha8Rng::seed_from_u64(7);
@@ -49,12 +52,13 @@ pub fn em_features(n: usize) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// `benches/baselines.rs::features_of`: `dim` smooth features of the pose plus noise.
-fn features_of(p: [f64; 2], dim: usize, rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
+/// `dim` smooth features of the pose, each with noise of standard deviation 0.01.
+pub fn features_of(p: [f64; 2], dim: usize, rng: &mut ChaCha8Rng) -> Vec<Option<f64>> {
     let noise = Normal::new(0.0, 0.01).expect("valid");
     let (x, y) = (p[0] / 9.5, (p[1] - 47.5) / 9.5);
     (0..dim)
         .map(|f| {
+            // Past the 8th, slopes fold back into the same range: distinct but alike features.
             let a = 0.5 + (f % 8) as f64 * 0.37 + (f / 8) as f64 * 0.05;
             let v = (a * x + (1.0 - a) * y).sin() + (0.7 * a * x * y).cos() + 0.3 * a * y;
             Some(v + noise.sample(rng))
@@ -62,8 +66,9 @@ fn features_of(p: [f64; 2], dim: usize, rng: &mut ChaCha8Rng) -> Vec<Option<f64>
         .collect()
 }
 
-/// `benches/baselines.rs::Samples::mesh`: a `side` × `side` serpentine mesh, 8 features.
-pub fn gp_samples(side: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
+/// A `side` × `side` mesh over [−9.5, 9.5] × [38, 57] mm in serpentine order, and `dim`
+/// features of each pose.
+pub fn mesh(side: usize, dim: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let step = 19.0 / (side - 1) as f64;
     let poses: Vec<[f64; 2]> = (0..side * side)
@@ -73,18 +78,21 @@ pub fn gp_samples(side: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
             [-9.5 + c as f64 * step, 38.0 + r as f64 * step]
         })
         .collect();
-    let rows = poses.iter().map(|&p| features_of(p, 8, &mut rng)).collect();
+    let rows = poses
+        .iter()
+        .map(|&p| features_of(p, dim, &mut rng))
+        .collect();
     (poses, rows)
 }
 
-/// `benches/baselines.rs::frames`: `n` random poses inside the mesh and their 8 features
-/// (the bench keeps only the features; the poses give the test error here).
-pub fn gp_frames(n: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
+/// `n` random poses inside the mesh and their `dim` features (the peers' test error needs the
+/// poses).
+pub fn frames(n: usize, dim: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
     let mut rng = ChaCha8Rng::seed_from_u64(12);
     (0..n)
         .map(|_| {
             let p = [rng.random_range(-9.0..9.0), rng.random_range(38.5..56.5)];
-            let row = features_of(p, 8, &mut rng);
+            let row = features_of(p, dim, &mut rng);
             (p, row)
         })
         .unzip()
