@@ -272,34 +272,26 @@ impl Grid {
         }
     }
 
-    fn eval(&self, q: [f64; 2], dim: usize, values: &mut [f64], jacobian: Option<&mut [[f64; 2]]>) {
-        // Cell and position within it, clamped to the grid.
+    /// The cell holding `q` (its lower corner's node, clamped to the grid) and `q`'s position in
+    /// it, 0 to 1 per axis.
+    #[inline]
+    fn locate(&self, q: [f64; 2]) -> ([usize; 2], [f64; 2]) {
         let mut cell = [0usize; 2];
         let mut t = [0.0; 2];
         for k in 0..2 {
             let x = ((q[k] - self.origin[k]) / self.step[k]).clamp(0.0, (self.nodes[k] - 1) as f64);
-            let c = (x.floor() as usize).min(self.nodes[k] - 2);
+            // x ≥ 0 (NaN gives 0 either way): truncation is the floor, without a call.
+            let c = (x as usize).min(self.nodes[k] - 2);
             cell[k] = c;
             t[k] = x - c as f64;
         }
+        (cell, t)
+    }
+
+    fn eval(&self, q: [f64; 2], dim: usize, values: &mut [f64], jacobian: Option<&mut [[f64; 2]]>) {
+        let (cell, t) = self.locate(q);
         // Hermite basis h00, h10, h01, h11 and their derivatives, per axis.
-        let basis = |t: f64| {
-            let (t2, t3) = (t * t, t * t * t);
-            (
-                [
-                    2.0 * t3 - 3.0 * t2 + 1.0,
-                    t3 - 2.0 * t2 + t,
-                    -2.0 * t3 + 3.0 * t2,
-                    t3 - t2,
-                ],
-                [
-                    6.0 * t2 - 6.0 * t,
-                    3.0 * t2 - 4.0 * t + 1.0,
-                    -6.0 * t2 + 6.0 * t,
-                    3.0 * t2 - 2.0 * t,
-                ],
-            )
-        };
+        let basis = |t: f64| (hermite(t), hermite_slopes(t));
         let ((bx, dbx), (by, dby)) = (basis(t[0]), basis(t[1]));
         let [hx, hy] = self.step;
         let corners = [(0, 0), (1, 0), (0, 1), (1, 1)];
@@ -493,6 +485,30 @@ fn grid_key(
 
 fn squared(a: [f64; 2], b: [f64; 2]) -> f64 {
     (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1])
+}
+
+/// The cubic Hermite basis h00, h10, h01, h11 at `t`.
+#[inline]
+fn hermite(t: f64) -> [f64; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        2.0 * t3 - 3.0 * t2 + 1.0,
+        t3 - 2.0 * t2 + t,
+        -2.0 * t3 + 3.0 * t2,
+        t3 - t2,
+    ]
+}
+
+/// The derivatives of [`hermite`]'s basis at `t`.
+#[inline]
+fn hermite_slopes(t: f64) -> [f64; 4] {
+    let t2 = t * t;
+    [
+        6.0 * t2 - 6.0 * t,
+        3.0 * t2 - 4.0 * t + 1.0,
+        -6.0 * t2 + 6.0 * t,
+        3.0 * t2 - 2.0 * t,
+    ]
 }
 
 #[cfg(test)]

@@ -3,7 +3,7 @@
 //! operation, so the values are bit-identical; only the value weights are computed (no slopes),
 //! and each pose's cell is looked up once for all its features (they are contiguous per node).
 
-use super::Grid;
+use super::{hermite, Grid};
 use crate::estimator::continuous::Continuous;
 
 impl Grid {
@@ -29,25 +29,8 @@ impl Grid {
     /// them) and the corner's first table index.
     #[inline]
     fn value_weights(&self, q: [f64; 2], dim: usize) -> ([[f64; 4]; 4], [usize; 4]) {
-        let mut cell = [0usize; 2];
-        let mut t = [0.0; 2];
-        for k in 0..2 {
-            let x = ((q[k] - self.origin[k]) / self.step[k]).clamp(0.0, (self.nodes[k] - 1) as f64);
-            // x ≥ 0 (NaN gives 0 either way): truncation is the floor, without a call.
-            let c = (x as usize).min(self.nodes[k] - 2);
-            cell[k] = c;
-            t[k] = x - c as f64;
-        }
-        let basis = |t: f64| {
-            let (t2, t3) = (t * t, t * t * t);
-            [
-                2.0 * t3 - 3.0 * t2 + 1.0,
-                t3 - 2.0 * t2 + t,
-                -2.0 * t3 + 3.0 * t2,
-                t3 - t2,
-            ]
-        };
-        let (bx, by) = (basis(t[0]), basis(t[1]));
+        let (cell, t) = self.locate(q);
+        let (bx, by) = (hermite(t[0]), hermite(t[1]));
         let [hx, hy] = self.step;
         let corners = [(0, 0), (1, 0), (0, 1), (1, 1)];
         let weights = corners.map(|(a, b)| {
