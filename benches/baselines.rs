@@ -5,7 +5,7 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::{
-    Centre, CentreSettings, Gp, GpSettings, Knn, KnnSettings, Labelled, PoseEstimator, TrainingSet,
+    Centre, CentreSettings, Gp, GpSettings, Knn, KnnSettings, PoseEstimator,
 };
 use std::hint::black_box;
 use std::time::Duration;
@@ -13,38 +13,7 @@ use std::time::Duration;
 #[path = "common/inputs.rs"]
 mod inputs;
 
-/// A `side` × `side` mesh in serpentine order and its features.
-struct Samples {
-    names: Vec<String>,
-    poses: Vec<[f64; 2]>,
-    rows: Vec<Vec<Option<f64>>>,
-}
-
-impl Samples {
-    fn mesh(side: usize) -> Self {
-        Self::mesh_of(side, 8)
-    }
-
-    /// A mesh with `dim` features per sample.
-    fn mesh_of(side: usize, dim: usize) -> Self {
-        let (poses, rows) = inputs::mesh(side, dim);
-        Self {
-            names: (0..dim).map(|i| format!("f{i}")).collect(),
-            poses,
-            rows,
-        }
-    }
-
-    fn training(&self) -> TrainingSet<'_> {
-        TrainingSet::new(
-            &self.names,
-            Labelled {
-                poses: &self.poses,
-                rows: &self.rows,
-            },
-        )
-    }
-}
+use inputs::Samples;
 
 /// Feature rows (`dim` features) of random poses inside the mesh.
 fn frames(n: usize, dim: usize) -> Vec<Vec<Option<f64>>> {

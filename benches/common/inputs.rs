@@ -5,6 +5,7 @@
 // Each bench uses its own part.
 #![allow(dead_code)]
 
+use evitrack::estimator::{Labelled, TrainingSet};
 use evitrack::evidence::{MassFunction, Subset};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -96,4 +97,38 @@ pub fn frames(n: usize, dim: usize) -> (Vec<[f64; 2]>, Vec<Vec<Option<f64>>>) {
             (p, row)
         })
         .unzip()
+}
+
+/// A `side` × `side` mesh in serpentine order and its features, as a training set.
+pub struct Samples {
+    pub names: Vec<String>,
+    pub poses: Vec<[f64; 2]>,
+    pub rows: Vec<Vec<Option<f64>>>,
+}
+
+impl Samples {
+    /// [`mesh`] with 8 features.
+    pub fn mesh(side: usize) -> Self {
+        Self::mesh_of(side, 8)
+    }
+
+    /// [`mesh`] with `dim` features per sample.
+    pub fn mesh_of(side: usize, dim: usize) -> Self {
+        let (poses, rows) = mesh(side, dim);
+        Self {
+            names: (0..dim).map(|i| format!("f{i}")).collect(),
+            poses,
+            rows,
+        }
+    }
+
+    pub fn training(&self) -> TrainingSet<'_> {
+        TrainingSet::new(
+            &self.names,
+            Labelled {
+                poses: &self.poses,
+                rows: &self.rows,
+            },
+        )
+    }
 }

@@ -12,7 +12,7 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
 
-use evitrack::estimator::{Gp, GpSettings, Labelled, PoseEstimator, TrainingSet};
+use evitrack::estimator::{Gp, GpSettings, PoseEstimator};
 use evitrack::evidence::{dempster_all, MassFunction, Subset};
 use evitrack::hmm::{GaussianHmm, HmmSettings};
 use evitrack::standardisation::Standardisation;
@@ -76,34 +76,19 @@ fn hmm_json(h: &GaussianHmm) -> Value {
 /// The GP bench's training samples and test frames, and the standardisations the GP fits them
 /// in (rebuilt by the same operations as `Gp::fit`, so the peer sees the same numbers).
 struct GpInputs {
-    names: Vec<String>,
-    poses: Vec<[f64; 2]>,
-    rows: Vec<Vec<Option<f64>>>,
+    samples: inputs::Samples,
     test_poses: Vec<[f64; 2]>,
     test_rows: Vec<Vec<Option<f64>>>,
 }
 
 impl GpInputs {
     fn new() -> Self {
-        let (poses, rows) = inputs::mesh(GP_SIDE, 8);
         let (test_poses, test_rows) = inputs::frames(GP_FRAMES, 8);
         Self {
-            names: (0..8).map(|i| format!("f{i}")).collect(),
-            poses,
-            rows,
+            samples: inputs::Samples::mesh(GP_SIDE),
             test_poses,
             test_rows,
         }
-    }
-
-    fn training(&self) -> TrainingSet<'_> {
-        TrainingSet::new(
-            &self.names,
-            Labelled {
-                poses: &self.poses,
-                rows: &self.rows,
-            },
-        )
     }
 
     fn export(&self) -> Value {
@@ -112,8 +97,8 @@ impl GpInputs {
                 .map(|r| r.iter().map(|v| v.expect("complete rows")).collect())
                 .collect()
         };
-        let (rows, test_rows) = (complete(&self.rows), complete(&self.test_rows));
-        let pose_rows: Vec<Vec<f64>> = self.poses.iter().map(|p| p.to_vec()).collect();
+        let (rows, test_rows) = (complete(&self.samples.rows), complete(&self.test_rows));
+        let pose_rows: Vec<Vec<f64>> = self.samples.poses.iter().map(|p| p.to_vec()).collect();
         let features = Standardisation::fit(&rows, 8);
         let output = Standardisation::fit(&pose_rows, 2);
         let chunks = |flat: Vec<f64>, w: usize| -> Vec<Vec<f64>> {
@@ -211,7 +196,7 @@ fn time(task: &str, reps: usize, result: Option<&Path>) -> Result<(), Fail> {
         _ => None,
     } {
         let data = GpInputs::new();
-        let training = data.training();
+        let training = data.samples.training();
         let settings = GpSettings {
             starts,
             ..GpSettings::default()
