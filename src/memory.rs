@@ -133,7 +133,8 @@ pub fn fit_parts(methods: &[Method], settings: &EstimatorSettings, shape: &FitSh
             ));
         }
         if uses(Method::CONTINUOUS_TEMPORAL) {
-            // The carried belief's residual and slopes at every node, one frame at a time.
+            // The carried belief's residual and slopes per node of the blocks a frame visits: at
+            // most every node, one frame at a time.
             parts.push(part(
                 format!("continuous_temporal carried belief, {gx} × {gy} nodes"),
                 format!("continuous.grid_spacing = {}", c.grid_spacing),
