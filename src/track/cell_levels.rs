@@ -14,6 +14,12 @@ pub(super) struct CellLevels<'a> {
     tuples: TupleStack,
 }
 
+impl Drop for CellLevels<'_> {
+    fn drop(&mut self) {
+        std::mem::take(&mut self.tuples).recycle();
+    }
+}
+
 impl GroupLevels for CellLevels<'_> {
     fn pair_level(&mut self, i: usize, j: usize) -> f64 {
         match (&self.usable[i], &self.usable[j]) {
@@ -149,7 +155,7 @@ impl Tracker {
         CellLevels {
             tracker: self,
             usable,
-            tuples: TupleStack::default(),
+            tuples: TupleStack::reused(),
         }
     }
 

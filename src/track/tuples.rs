@@ -35,7 +35,31 @@ pub(super) struct TupleStack {
     top: Vec<f64>,
 }
 
+thread_local! {
+    /// The buffers the last frame on this thread left, for the next one (a frame's search asks
+    /// for thousands of groups; without this each frame allocated its buffers anew).
+    static KEPT: std::cell::RefCell<TupleStack> = std::cell::RefCell::new(TupleStack::default());
+}
+
 impl TupleStack {
+    /// An empty stack with the buffers this thread's last frame gave back.
+    pub(super) fn reused() -> Self {
+        KEPT.with(|kept| std::mem::take(&mut *kept.borrow_mut()))
+    }
+
+    /// Gives the buffers back for the next frame on this thread; no tuple is kept, so every
+    /// group of the next frame is built again.
+    pub(super) fn recycle(mut self) {
+        let chain = std::mem::take(&mut self.chain);
+        self.spare.extend(chain);
+        // A frame that is being dropped while the thread ends has nowhere to give them back.
+        let _ = KEPT.try_with(|kept| {
+            if let Ok(mut kept) = kept.try_borrow_mut() {
+                *kept = self;
+            }
+        });
+    }
+
     /// The Bayesian level of `group` (at least two usable features), or `None` when the sum
     /// underflows and the general path must decide, as `Tracker::bayesian_level`.
     pub(super) fn level(
