@@ -3,7 +3,8 @@
 //! operation, so the values are bit-identical; only the value weights are computed (no slopes),
 //! and each pose's cell is looked up once for all its features (they are contiguous per node).
 
-use super::{hermite, Grid};
+use super::grid::hermite;
+use super::Grid;
 use crate::estimator::continuous::Continuous;
 
 impl Grid {
