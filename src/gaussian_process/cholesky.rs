@@ -13,7 +13,7 @@ use nalgebra::{Cholesky, DMatrix, Dyn};
 /// Columns factored together.
 const PANEL: usize = 4;
 /// Rows of a register tile.
-const ROWS: usize = 4;
+const ROWS: usize = 8;
 
 /// The Cholesky factor of a symmetric positive-definite matrix (its lower triangle is read, its
 /// strict upper triangle kept as given, as nalgebra's `l_dirty` shows it), or `None` where a
@@ -22,9 +22,14 @@ const ROWS: usize = 4;
 pub fn cholesky(mut matrix: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
     let n = matrix.nrows();
     assert_eq!(n, matrix.ncols(), "a Cholesky factor needs a square matrix");
-    let factored = super::simd::dispatch(|| factor_in_place(matrix.as_mut_slice(), n));
+    let factored = factor(matrix.as_mut_slice(), n);
     factored.then(|| Cholesky::pack_dirty(matrix))
 }
+
+super::simd::with_avx!(
+    /// [`factor_in_place`], with AVX where the processor has it.
+    fn factor(a: &mut [f64], n: usize) -> bool = factor_in_place
+);
 
 /// The factorisation of [`cholesky`] on a column-major slice; `false` at a refused pivot.
 #[inline(always)]

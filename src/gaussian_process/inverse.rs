@@ -14,48 +14,54 @@ const TILE: usize = 4;
 /// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
 /// Cholesky factor (column-major, upper part ignored); the rest of the returned matrix is 0.
 pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
-    let n = l.nrows();
-    super::simd::dispatch(|| inverse_of(l.as_slice(), n))
+    inverse(l.as_slice(), l.nrows())
 }
 
+super::simd::with_avx!(
+    /// [`inverse_of`], with AVX where the processor has it.
+    fn inverse(l: &[f64], n: usize) -> Vec<f64> = inverse_of
+);
+
 /// [`upper_inverse`] on a column-major slice.
+///
+/// Both factors are first laid out in panels of four (rows of L, columns of M) so that every
+/// tile reads its two operands from consecutive addresses, k after k.
 #[inline(always)]
 fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
-    // M = L⁻¹ row-major, rows padded to a multiple of 4 columns (zero columns): a tile's four
-    // values of one row of M are adjacent. Entries above the diagonal stay exactly 0.
-    let width = n.div_ceil(TILE) * TILE;
-    let mut m = vec![0.0; n * width];
-    for j0 in (0..n).step_by(TILE) {
+    let panels = n.div_ceil(TILE);
+    let panel_len = n * TILE;
+    // Rows of L in panels: `rows_of_l[p][k][r]` = L(4p + r, k), zero past n and above the
+    // diagonal.
+    let mut rows_of_l = vec![0.0; panels * panel_len];
+    for k in 0..n {
+        for i in k..n {
+            rows_of_l[(i / TILE) * panel_len + k * TILE + i % TILE] = l[i + k * n];
+        }
+    }
+    // M = L⁻¹ in column panels: `m[p][k][c]` = M(k, 4p + c); entries above the diagonal stay
+    // exactly 0, and so do the padding columns past n.
+    let mut m = vec![0.0; panels * panel_len];
+    for (p, panel) in m.chunks_exact_mut(panel_len).enumerate() {
+        let j0 = p * TILE;
         for i0 in (j0..n).step_by(TILE) {
             let rows = TILE.min(n - i0);
+            let l_rows = &rows_of_l[(i0 / TILE) * panel_len..(i0 / TILE + 1) * panel_len];
             let mut acc = [[0.0f64; TILE]; TILE];
-            for (r, row) in acc.iter_mut().enumerate().take(rows) {
+            for (r, row) in acc.iter_mut().enumerate() {
                 for (c, value) in row.iter_mut().enumerate() {
                     if i0 + r == j0 + c {
                         *value = 1.0;
                     }
                 }
             }
-            // Rows j0 … i0 − 1 of M are final: their updates first, in increasing k.
-            if rows == TILE {
-                let rows_of_m = m[j0 * width..i0 * width].chunks_exact(width);
-                let columns_of_l = l[j0 * n..i0 * n].chunks_exact(n);
-                for (row, column) in rows_of_m.zip(columns_of_l) {
-                    let mk: [f64; TILE] = row[j0..j0 + TILE].try_into().unwrap_or([0.0; TILE]);
-                    let lk: [f64; TILE] = column[i0..i0 + TILE].try_into().unwrap_or([0.0; TILE]);
-                    for r in 0..TILE {
-                        for c in 0..TILE {
-                            acc[r][c] -= mk[c] * lk[r];
-                        }
-                    }
-                }
-            } else {
-                for k in j0..i0 {
-                    for (r, row) in acc.iter_mut().enumerate().take(rows) {
-                        let lik = l[i0 + r + k * n];
-                        for (c, value) in row.iter_mut().enumerate() {
-                            *value -= m[k * width + j0 + c] * lik;
-                        }
+            // Rows j0 … i0 − 1 of M are final: their updates first, in increasing k (rows of
+            // the tile past n compute on zeros and are never stored).
+            let (done, tile_rows) = panel.split_at_mut(i0 * TILE);
+            let earlier = done[j0 * TILE..].chunks_exact(TILE);
+            for (mk, lk) in earlier.zip(l_rows[j0 * TILE..i0 * TILE].chunks_exact(TILE)) {
+                for r in 0..TILE {
+                    for c in 0..TILE {
+                        acc[r][c] -= mk[c] * lk[r];
                     }
                 }
             }
@@ -63,14 +69,14 @@ fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
             for (r, row) in acc.iter_mut().enumerate().take(rows) {
                 let i = i0 + r;
                 for k in i0..i {
-                    let lik = l[i + k * n];
+                    let lik = l_rows[k * TILE + r];
                     for (c, value) in row.iter_mut().enumerate() {
-                        *value -= m[k * width + j0 + c] * lik;
+                        *value -= tile_rows[(k - i0) * TILE + c] * lik;
                     }
                 }
-                let d = l[i + i * n];
+                let d = l_rows[i * TILE + r];
                 for (c, value) in row.iter().enumerate() {
-                    m[i * width + j0 + c] = value / d;
+                    tile_rows[r * TILE + c] = value / d;
                 }
             }
         }
@@ -78,26 +84,49 @@ fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
     // (K⁻¹)_ij for the columns j0 … j0 + 3 and every i ≤ j: sums over k ≥ j0 (M_kj = 0 below
     // j, and adding those exact zeros changes no bit).
     let mut inverse = vec![0.0; n * n];
-    for j0 in (0..n).step_by(TILE) {
-        for i0 in (0..(j0 + TILE).min(n)).step_by(TILE) {
+    let mut store = |acc: &[[f64; TILE]; TILE], i0: usize, j0: usize| {
+        for (r, row) in acc.iter().enumerate() {
+            for (c, value) in row.iter().enumerate() {
+                let (i, j) = (i0 + r, j0 + c);
+                if i <= j && j < n {
+                    inverse[i + j * n] = *value;
+                }
+            }
+        }
+    };
+    for (q, mj_panel) in m.chunks_exact(panel_len).enumerate() {
+        let j0 = q * TILE;
+        let mj_rows = || mj_panel[j0 * TILE..].chunks_exact(TILE);
+        // Two row tiles at a time: eight independent chains hide the latency of an addition.
+        let mut p = 0;
+        while p + 1 <= q {
+            let (a, b) = (&m[p * panel_len..], &m[(p + 1) * panel_len..]);
+            let (mut acc_a, mut acc_b) = ([[0.0f64; TILE]; TILE], [[0.0f64; TILE]; TILE]);
+            let rows = a[j0 * TILE..panel_len].chunks_exact(TILE);
+            let rows = rows.zip(b[j0 * TILE..panel_len].chunks_exact(TILE));
+            for ((ma, mb), mj) in rows.zip(mj_rows()) {
+                for r in 0..TILE {
+                    for c in 0..TILE {
+                        acc_a[r][c] += ma[r] * mj[c];
+                        acc_b[r][c] += mb[r] * mj[c];
+                    }
+                }
+            }
+            store(&acc_a, p * TILE, j0);
+            store(&acc_b, (p + 1) * TILE, j0);
+            p += 2;
+        }
+        if p <= q {
+            let mi_panel = &m[p * panel_len..(p + 1) * panel_len];
             let mut acc = [[0.0f64; TILE]; TILE];
-            for row in m[j0 * width..].chunks_exact(width) {
-                let mi: [f64; TILE] = row[i0..i0 + TILE].try_into().unwrap_or([0.0; TILE]);
-                let mj: [f64; TILE] = row[j0..j0 + TILE].try_into().unwrap_or([0.0; TILE]);
+            for (mi, mj) in mi_panel[j0 * TILE..].chunks_exact(TILE).zip(mj_rows()) {
                 for r in 0..TILE {
                     for c in 0..TILE {
                         acc[r][c] += mi[r] * mj[c];
                     }
                 }
             }
-            for (r, row) in acc.iter().enumerate() {
-                for (c, value) in row.iter().enumerate() {
-                    let (i, j) = (i0 + r, j0 + c);
-                    if i <= j && j < n {
-                        inverse[i + j * n] = *value;
-                    }
-                }
-            }
+            store(&acc, p * TILE, j0);
         }
     }
     inverse

@@ -2,21 +2,30 @@
 //! processor has them (AVX: four multiplies or subtractions per instruction instead of two).
 //! Only the width changes: each lane still rounds every multiply and every subtraction on its
 //! own (no fused multiply-add is enabled), so the bits are those of the plain build.
+//!
+//! A `#[target_feature]` function only widens code inlined into it, and a closure passed to a
+//! generic one is not reliably inlined (the earlier generic dispatch ran the plain build), so
+//! each kernel gets a named copy made by [`with_avx!`].
 
-/// `work()` compiled for AVX when the processor has it, else as built. `work` must be
-/// `#[inline(always)]` code (closures are) for the AVX copy to reach its loops.
-#[inline(always)]
-pub(super) fn dispatch<T>(work: impl FnOnce() -> T) -> T {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx") {
-        // SAFETY: the processor was just found to have AVX, all that `with_avx` requires.
-        return unsafe { with_avx(work) };
-    }
-    work()
+/// Defines `fn $name($args) -> $out` that runs the `#[inline(always)]` function `$work` compiled
+/// for AVX when the processor has it, else as built.
+macro_rules! with_avx {
+    ($(#[$doc:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),*) -> $out:ty = $work:ident) => {
+        $(#[$doc])*
+        $vis fn $name($($arg: $ty),*) -> $out {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx")]
+                fn widened($($arg: $ty),*) -> $out {
+                    $work($($arg),*)
+                }
+                if std::arch::is_x86_feature_detected!("avx") {
+                    // SAFETY: the processor was just found to have AVX, all `widened` needs.
+                    return unsafe { widened($($arg),*) };
+                }
+            }
+            $work($($arg),*)
+        }
+    };
 }
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
-unsafe fn with_avx<T>(work: impl FnOnce() -> T) -> T {
-    work()
-}
+pub(super) use with_avx;
