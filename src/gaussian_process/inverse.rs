@@ -99,7 +99,7 @@ fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
         let mj_rows = || mj_panel[j0 * TILE..].chunks_exact(TILE);
         // Two row tiles at a time: eight independent chains hide the latency of an addition.
         let mut p = 0;
-        while p + 1 <= q {
+        while p < q {
             let (a, b) = (&m[p * panel_len..], &m[(p + 1) * panel_len..]);
             let (mut acc_a, mut acc_b) = ([[0.0f64; TILE]; TILE], [[0.0f64; TILE]; TILE]);
             let rows = a[j0 * TILE..panel_len].chunks_exact(TILE);
