@@ -240,6 +240,20 @@ pub fn group_beside_past(
     group_beside_past_proven(levels, usable, past, policy, threshold, |_, _| false)
 }
 
+/// [`group_beside_past`] for a tracker that can prove some groups of one or two features within
+/// the threshold with the past without their level: `proven` is asked with the features' mask
+/// and must never say so of a group that is not (the continuous tracker over time, issue 32).
+pub fn group_beside_past_with<L: GroupLevels>(
+    levels: &mut L,
+    usable: GroupMask,
+    past: usize,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+    proven: impl FnMut(&mut L, GroupMask) -> bool,
+) -> (GroupMask, f64) {
+    group_beside_past_proven(levels, usable, past, policy, threshold, proven)
+}
+
 /// [`group_beside_past`], with `proven` telling which groups of one or two features are within
 /// the threshold with the past without their level (it must never say so of one that is not).
 fn group_beside_past_proven<L: GroupLevels>(

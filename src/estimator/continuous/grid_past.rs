@@ -14,6 +14,7 @@
 
 use super::frame::{Frame, PastTerm};
 use super::grid_levels::BLOCK;
+use crate::track::GroupMask;
 
 /// No slot given yet.
 const NONE: u32 = u32::MAX;
@@ -144,6 +145,40 @@ impl Frame<'_> {
             cache.bounds[b] = past_block_bound(past, span(0, bc), span(1, br), step);
         }
         cache.bounds[b]
+    }
+
+    /// The frame's own chosen group `chosen` (not the fallback) when its level proves every
+    /// group of its features within the threshold with the past, else 0, so that the search
+    /// beside the past computes none of those levels (issue 32: 36 of them a clean frame).
+    ///
+    /// Where the group's minimum lies well inside the past's flat top, the past adds exactly
+    /// nothing at that node, so each sub-group S with the past has m_{S+past} ≤ m_G there and its
+    /// level is at most G's own (up to rounding, against which the margin below guards). Sums
+    /// only: discounted and cautious levels are left alone.
+    pub(super) fn within_beside_past(&mut self, chosen: Option<(f64, GroupMask)>) -> GroupMask {
+        let (Some(past), Some((_, group))) = (self.past, chosen) else {
+            return 0;
+        };
+        if group.count_ones() < 2 || group & self.past_bit() != 0 || !self.model.fusion.plain() {
+            return 0;
+        }
+        let threshold = self.model.threshold().value();
+        let level = self.grid_level(group, threshold);
+        if !(level.value.is_finite() && level.value <= threshold * (1.0 - 1e-6) - 1e-9) {
+            return 0;
+        }
+        let Some(point) = level.point else {
+            return 0;
+        };
+        let (_, step, _, _) = self.model.surrogate.grid();
+        // The node of the minimum is within half a cell's diagonal of its point.
+        let node = (point[0] - past.centre[0]).hypot(point[1] - past.centre[1])
+            + 0.5 * step[0].hypot(step[1]);
+        if node < 0.999 * past.reach {
+            group
+        } else {
+            0
+        }
     }
 
     /// The block of node `n`.

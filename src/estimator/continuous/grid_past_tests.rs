@@ -102,3 +102,80 @@ fn assert_same(a: &super::Kept, b: &super::Kept, group: GroupMask) {
     let bits = |s: &Vec<[f64; 7]>| s.iter().map(|s| s.map(f64::to_bits)).collect::<Vec<_>>();
     assert_eq!(bits(&a.sums), bits(&b.sums), "{group:b}");
 }
+
+/// Frames near the past's prediction, some with a feature stuck far away: every group the frame's
+/// own choice proves within the threshold beside the past has its level within it, and the
+/// search beside the past with those proofs gives what it gives computing every level.
+#[test]
+fn groups_proven_beside_the_past_are_within_the_threshold() {
+    use crate::track::{group_beside_past, group_beside_past_with, SelectionPolicy};
+    let features = 6;
+    let past_bit: GroupMask = 1 << features;
+    let mut proven_frames = 0;
+    for learn in [true, false] {
+        let model = fitted_continuous(features, 16, 100, 0.002, learn, 2);
+        let threshold = model.threshold();
+        assert_eq!(threshold.value().is_finite(), learn);
+        let mut rng = ChaCha8Rng::seed_from_u64(33);
+        for k in 0..40 {
+            let q = workspace_points(1, &mut rng)[0];
+            let mut row = feature_row(features, q, 0.002, &mut rng);
+            if k % 4 == 0 {
+                row[k % features] = row[k % features].map(|v| v + 5.0);
+            }
+            let past = PastTerm {
+                centre: [
+                    q[0] + rng.random_range(-1.0..1.0),
+                    q[1] + rng.random_range(-1.0..1.0),
+                ],
+                reach: rng.random_range(0.0..4.0),
+                scale: 10f64.powf(rng.random_range(-2.0..0.5)),
+                reliability: if k % 2 == 0 {
+                    1.0
+                } else {
+                    rng.random_range(0.5..1.0)
+                },
+            };
+            let values = model.usable(row);
+            let mut frame = Frame::new(&model, values.clone()).with_past(past);
+            let usable = frame.usable_mask;
+            let alone = frame.select();
+            let proof = if alone.fallback {
+                0
+            } else {
+                frame.within_beside_past(alone.chosen)
+            };
+            proven_frames += usize::from(proof != 0);
+            // Every sub-group of the proof, with the past, on a fresh frame.
+            let mut fresh = Frame::new(&model, values.clone()).with_past(past);
+            for s in 1..=proof {
+                if s & !proof == 0 {
+                    let level = fresh.sum_level(s | past_bit, threshold.value()).value;
+                    assert!(threshold.admits(level), "{s:b} of {proof:b}: {level}");
+                }
+            }
+            for policy in [
+                SelectionPolicy::LargestSubset,
+                SelectionPolicy::LowestConflict { min_size: 2 },
+            ] {
+                let mut plain = Frame::new(&model, values.clone()).with_past(past);
+                plain.select();
+                let want = group_beside_past(&mut plain, usable, features, policy, threshold);
+                let mut fast = Frame::new(&model, values.clone()).with_past(past);
+                fast.select();
+                let got = group_beside_past_with(
+                    &mut fast,
+                    usable,
+                    features,
+                    policy,
+                    threshold,
+                    |_, mask| mask & !proof == 0,
+                );
+                assert_eq!(got.0, want.0, "{policy:?}");
+                assert_eq!(got.1.to_bits(), want.1.to_bits(), "{policy:?}");
+            }
+        }
+    }
+    // Most frames near the prediction prove their own choice.
+    assert!(proven_frames > 30, "{proven_frames} of 80");
+}

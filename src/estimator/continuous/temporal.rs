@@ -30,7 +30,7 @@ use crate::estimator::{
 use crate::features::FeatureConfig;
 use crate::model_file::{self, corrupted, Stamp};
 use crate::range::within;
-use crate::track::{group_beside_past, past_outweighs, GroupMask};
+use crate::track::{group_beside_past_with, past_outweighs, GroupMask};
 
 /// Most features the continuous tracker over time takes: the carried belief is one more bit.
 pub const MAX_CONTINUOUS_TEMPORAL_FEATURES: usize = super::MAX_CONTINUOUS_FEATURES - 1;
@@ -281,12 +281,19 @@ impl MotionTracker for ContinuousMotion<'_> {
         let alone = frame.select();
         let past_bit = frame.past_bit();
         let features = model.file.header.feature_names.len();
-        let (with_past, _) = group_beside_past(
+        // Sub-groups of the frame's own choice proven within the threshold beside the past.
+        let proven = if alone.fallback {
+            0
+        } else {
+            frame.within_beside_past(alone.chosen)
+        };
+        let (with_past, _) = group_beside_past_with(
             &mut frame,
             usable,
             features,
             model.file.settings.selection,
             model.threshold(),
+            |_, mask| mask & !proven == 0,
         );
         let weight = settings.past_weight_for(features);
         let frame_choice = alone.chosen.map(|(_, group)| (group, alone.fallback));
