@@ -8,7 +8,6 @@ pub(crate) mod outputs;
 mod report;
 mod runs;
 mod shards;
-mod time;
 
 pub(crate) fn evitrack(args: &[&str], stdin: &str) -> Output {
     let mut child = Command::new(env!("CARGO_BIN_EXE_evitrack"))

@@ -151,13 +151,13 @@ fn the_continuous_tracker_meets_the_bound_and_does_not_beat_it() {
 /// Paper setup (e), seed 1: every method's RMS error over the limit's on the clean frames.
 #[test]
 fn on_paper_e_no_method_beats_the_limit_and_frames_csv_holds_it() {
-    use evitrack::experiment::{run_all, Workbench};
+    use evitrack::experiment::run_all;
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/paper.toml");
     let set = evitrack::scenario::ScenarioSet::load(std::path::Path::new(path)).unwrap();
     let e = (set.variants.into_iter())
         .find(|v| v.name == "paper-e")
         .expect("paper.toml has setup (e)");
-    let output = run_all(&[e], 1, &Workbench::new(), &|_, _, _, _| {})
+    let output = run_all(&[e], 1, crate::bench(), &|_, _, _, _| {})
         .pop()
         .unwrap()
         .expect("setup (e) runs");

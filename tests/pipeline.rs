@@ -14,10 +14,9 @@ fn paper() -> ScenarioSet {
 fn run_paper() -> (Vec<RunSummary>, Vec<Comparison>, Vec<(String, FrameRecord)>) {
     let set = paper();
     let runs = set.seeded(Some(&SeedList::Count(10))).unwrap();
-    let bench = Workbench::new();
     let mut summaries = Vec::new();
     let mut frames = Vec::new();
-    for (result, run) in run_all(&runs, 2, &bench, &|_, _, _, _| {})
+    for (result, run) in run_all(&runs, 2, crate::bench(), &|_, _, _, _| {})
         .into_iter()
         .zip(&runs)
     {
@@ -228,8 +227,9 @@ fn paper_table_meets_its_expectations() {
 fn same_scenario_and_seed_give_identical_results_whatever_the_jobs() {
     let set = paper();
     let variants: Vec<CheckedScenario> = set.variants[..2].to_vec();
-    // The summaries hold no wall times: they compare whole.
-    let one: Vec<RunSummary> = run_all(&variants, 1, &Workbench::new(), &|_, _, _, _| {})
+    // The summaries hold no wall times: they compare whole. One thread on the process's
+    // workbench (whatever other tests put there), two on a fresh one.
+    let one: Vec<RunSummary> = run_all(&variants, 1, crate::bench(), &|_, _, _, _| {})
         .into_iter()
         .map(|r| r.unwrap().summary)
         .collect();
@@ -240,7 +240,7 @@ fn same_scenario_and_seed_give_identical_results_whatever_the_jobs() {
     assert_eq!(one, two);
     // Another seed draws other noise: the numbers move.
     let reseeded = variants[0].with_seed(variants[0].seed + 1).unwrap();
-    let other = run_all(&[reseeded], 1, &Workbench::new(), &|_, _, _, _| {})
+    let other = run_all(&[reseeded], 1, crate::bench(), &|_, _, _, _| {})
         .pop()
         .unwrap()
         .unwrap()
@@ -326,7 +326,7 @@ fn best_model_and_its_baselines_meet_their_expectations() {
         .iter()
         .find(|v| v.name() == "best-n24")
         .expect("best.toml has the n24 variant");
-    let output = evitrack::experiment::run(n24, &Workbench::new(), &mut |_, _, _| {}).unwrap();
+    let output = evitrack::experiment::run(n24, crate::bench(), &mut |_, _, _| {}).unwrap();
     let summary = &output.summary;
     crate::confidence::assert_regions_calibrated([summary]);
     assert_eq!(summary.samples, 1521);

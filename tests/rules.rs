@@ -1,19 +1,72 @@
 //! Fusion rules (issue 30): every variant of `scenarios/rules.toml` meets its bands on seed 1,
-//! as `evitrack sweep scenarios/rules.toml --check` checks them (135 runs; about a minute on 2
-//! cores since the variants share their fits), and their files hold no undocumented non-finite
-//! number.
+//! as `evitrack sweep scenarios/rules.toml --check` checks them (135 runs), and their files hold
+//! no undocumented non-finite number. CI checks the variants in five groups, one test each, so
+//! they run side by side; the groups share their simulations and fits through the process's
+//! workbench (`crate::bench`), as one sweep shares them between its variants.
 
-use crate::run_every_variant;
+use crate::run_variants_where;
 
-#[test]
-fn the_rules_sweep_meets_its_expectations() {
-    let runs = run_every_variant("rules.toml");
-    assert_eq!(runs.len(), 135);
+/// The groups, by setup prefix and conditions (`None`: every condition of the setup).
+const GROUPS: [(&str, Option<&[&str]>); 5] = [
+    ("e-", Some(&["clean", "stuck", "noise-burst"])),
+    ("e-", Some(&["occluder-dark", "glare", "salt-pepper"])),
+    ("n24-", None),
+    ("cont-", None),
+    ("ctemp-", None),
+];
+
+fn in_group(name: &str, (setup, conditions): (&str, Option<&[&str]>)) -> bool {
+    let Some(rest) = name.strip_prefix(setup) else {
+        return false;
+    };
+    conditions.is_none_or(|c| c.iter().any(|c| rest.starts_with(&format!("{c}-"))))
+}
+
+/// Runs group `index` of [`GROUPS`]: each variant meets its bands, its files are scanned.
+fn check_group(index: usize, expected: usize) {
+    let runs = run_variants_where("rules.toml", |name| in_group(name, GROUPS[index]));
+    assert_eq!(runs.len(), expected, "group {:?}", GROUPS[index]);
     for (name, output) in &runs {
         let missed = output.summary.regressions();
         assert!(missed.is_empty(), "{name}: {missed:#?}");
     }
     crate::cli::outputs::scan_outputs(&runs);
+}
+
+#[test]
+fn the_groups_hold_every_rules_variant_once() {
+    let set = crate::load_scenario("rules.toml");
+    assert_eq!(set.variants.len(), 135);
+    for variant in &set.variants {
+        let name = variant.name().strip_prefix("rules-").unwrap();
+        let groups = GROUPS.iter().filter(|g| in_group(name, **g)).count();
+        assert_eq!(groups, 1, "{name}");
+    }
+}
+
+#[test]
+fn the_rules_sweep_meets_its_expectations_on_e_under_feature_faults() {
+    check_group(0, 30);
+}
+
+#[test]
+fn the_rules_sweep_meets_its_expectations_on_e_under_image_faults() {
+    check_group(1, 30);
+}
+
+#[test]
+fn the_rules_sweep_meets_its_expectations_on_n24() {
+    check_group(2, 15);
+}
+
+#[test]
+fn the_rules_sweep_meets_its_expectations_with_the_continuous_tracker() {
+    check_group(3, 36);
+}
+
+#[test]
+fn the_rules_sweep_meets_its_expectations_with_the_continuous_tracker_over_time() {
+    check_group(4, 24);
 }
 
 /// Loads a scenario whose `[track]` ends with `track`; the error's text.

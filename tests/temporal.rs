@@ -370,12 +370,12 @@ fn without_a_velocity_line_predictions_stay_within_reach_of_the_last_estimate() 
 /// held to the bands of its expectations (±3 % of its measured errors, both directions).
 #[test]
 fn on_coarse_frames_the_past_does_not_hurt() {
-    use evitrack::experiment::{run_all, Workbench};
+    use evitrack::experiment::run_all;
     use evitrack::scenario::{ScenarioSet, SeedList};
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/coarse.toml");
     let set = ScenarioSet::load(std::path::Path::new(path)).unwrap();
     let runs = set.seeded(Some(&SeedList::Count(5))).unwrap();
-    let outputs = run_all(&runs, 2, &Workbench::new(), &|_, _, _, _| {});
+    let outputs = run_all(&runs, 2, crate::bench(), &|_, _, _, _| {});
     for (run, output) in runs.iter().zip(outputs) {
         let output = output.unwrap_or_else(|e| panic!("{} failed: {e}", run.name()));
         let summary = &output.summary;
