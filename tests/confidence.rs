@@ -155,7 +155,8 @@ fn the_confidence_sweep_under_salt_and_pepper_and_a_dark_box_meets_the_readme_st
     assert!((0.8..=1.35).contains(&dark), "{dark}");
     let dark_cover = confidence(&runs, "occluder-dark", "continuous").coverage_corrupted;
     assert!(dark_cover.unwrap() < 0.9, "{dark_cover:?}");
-    // The GP's regions hold few salt-and-pepper frames: its detection score flags fewer.
+    // The GP's detection score (its features' distance from the samples' at its answer) flags
+    // salt-and-pepper frames: its regions or abstentions hold nearly all of them.
     let gp = confidence(&runs, "salt-pepper", "gp");
-    assert!(gp.coverage_corrupted.unwrap() < 0.8, "{gp:?}");
+    assert!(gp.coverage_corrupted.unwrap() >= 0.9, "{gp:?}");
 }

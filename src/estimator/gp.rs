@@ -9,19 +9,19 @@
 //! when none remains); the GP needs every feature, so a frame with any missing feature has no
 //! estimate (flagged in `flags.missing`). `uncertainty_radius` is the radius of the 90 % disc of
 //! an isotropic 2-D Gaussian whose per-axis standard deviation is the RMS over x and y of the
-//! predictive standard deviation (latent variance plus noise), in mm. Fitting costs O(m³) per
-//! optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a frame costs O(n·D) for the mean and
-//! O(n²) for the variance.
+//! predictive standard deviation (latent variance plus noise), in mm. `detection_score` is how
+//! far the frame's standardised features lie from those the samples show at the estimate (every
+//! feature alike, see `Factor::inconsistency`), so a corrupted feature the kernel ignores still
+//! raises it. Fitting costs O(m³) per optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a
+//! frame costs O(n·D) for the mean and the score and O(n²) for the variance.
 
 use crate::range::within;
 use std::path::Path;
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::inputs::{
-    check_header_features, check_training, frame_values, scaled_norm, training_header,
-};
+use super::inputs::{check_header_features, check_training, frame_values, training_header};
 use super::samples::{check_exact_gp_count, check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -34,6 +34,9 @@ use crate::standardisation::Standardisation;
 const JITTERS: [f64; 9] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2];
 /// The 90 % disc of an isotropic 2-D Gaussian has radius σ·√(−2 ln 0.1).
 const DISC_90: f64 = 2.145_966_026_289_347;
+/// Samples nearest the estimate that the detection score's local plane goes through (a 3 × 3
+/// block of a mesh).
+const LOCAL_SAMPLES: usize = 9;
 
 /// How the Gaussian-process baseline is fitted.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -126,6 +129,8 @@ struct Factor {
     alpha: Vec<[f64; 2]>,
     /// σn² plus any jitter the factorisation needed.
     noise_var: f64,
+    /// Standardised sample features (every feature weighs the same), row-major.
+    standard: Vec<f64>,
 }
 
 /// The model file, and the fitted state.
@@ -303,21 +308,18 @@ impl Gp {
     }
 
     /// Predictive mean (mm), the RMS over x and y of the predictive standard deviation (mm) and
-    /// the distance to the nearest sample in the kernel's scaled feature space, for a complete
-    /// row of feature values.
+    /// the detection score ([`Factor::inconsistency`]), for a complete row of feature values.
     fn predict(&self, values: &[f64]) -> ([f64; 2], f64, f64) {
         let (f, h, file) = (&self.factor, &self.file.hyperparameters, &self.file);
-        let query: Vec<f64> = (values.iter().enumerate())
-            .map(|(d, &x)| file.standardisation.apply(d, x) / h.length_scales[d])
+        let standard: Vec<f64> = (values.iter().enumerate())
+            .map(|(d, &x)| file.standardisation.apply(d, x))
+            .collect();
+        let query: Vec<f64> = (standard.iter().zip(&h.length_scales))
+            .map(|(z, l)| z / l)
             .collect();
         let sf2 = h.signal_std * h.signal_std;
-        let mut nearest = f64::INFINITY;
         let kstar: Vec<f64> = (f.inputs.chunks_exact(values.len()))
-            .map(|row| {
-                let d2 = squared_distance(row, &query);
-                nearest = nearest.min(d2);
-                sf2 * (-0.5 * d2).exp()
-            })
+            .map(|row| sf2 * (-0.5 * squared_distance(row, &query)).exp())
             .collect();
         let mut mean = [0.0; 2];
         for (k, a) in kstar.iter().zip(&f.alpha) {
@@ -338,18 +340,10 @@ impl Gp {
             means[0] + scales[0] * mean[0],
             means[1] + scales[1] * mean[1],
         ];
-        // A frame far beyond the samples overflows the squares: the distance itself.
-        let nearest = if nearest.is_finite() {
-            nearest.sqrt()
-        } else {
-            (f.inputs.chunks_exact(values.len()))
-                .map(|row| scaled_norm(row.iter().zip(&query).map(|(r, q)| q - r)))
-                .fold(f64::INFINITY, f64::min)
-        };
         (
             pose,
             std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
-            nearest,
+            f.inconsistency(&standard, pose, &file.sample_poses),
         )
     }
 }
@@ -369,15 +363,15 @@ impl PoseEstimator for Gp {
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
         let (values, missing) = frame_values(features, self.file.header.feature_names.len())?;
-        let (pose, std, nearest) = if missing.is_empty() {
+        let (pose, std, score) = if missing.is_empty() {
             let values: Vec<f64> = values.iter().map(|v| v.unwrap_or(0.0)).collect();
-            let (pose, std, nearest) = self.predict(&values);
-            (Some(pose), Some(std), Some(nearest))
+            let (pose, std, score) = self.predict(&values);
+            (Some(pose), Some(std), Some(score))
         } else {
             (None, None, None)
         };
         Ok(PoseEstimate {
-            detection_score: nearest,
+            detection_score: score,
             pose,
             uncertainty_radius: std.map(|s| s * DISC_90),
             group: None,
@@ -429,6 +423,7 @@ impl Factor {
     /// scaled `outputs` (row-major, 2 per sample), adding jitter if the factorisation fails.
     fn new(inputs: &[f64], outputs: &[f64], hyper: &GpHyperparameters) -> Result<Self, String> {
         let dim = hyper.length_scales.len();
+        let standard = inputs.to_vec();
         let inputs: Vec<f64> = inputs
             .chunks_exact(dim)
             .flat_map(|row| row.iter().zip(&hyper.length_scales).map(|(z, l)| z / l))
@@ -465,10 +460,61 @@ impl Factor {
                     lower,
                     alpha: (0..n).map(|i| [alpha[(i, 0)], alpha[(i, 1)]]).collect(),
                     noise_var,
+                    standard,
                 });
             }
         }
         Err("the kernel matrix is not positive definite, even with jitter of 1e-2 σf²".into())
+    }
+}
+
+impl Factor {
+    /// The detection score: how far the frame's standardised features lie from those the samples
+    /// show at the estimated `pose` — the Euclidean norm, over every feature alike, of the query
+    /// less a plane through the [`LOCAL_SAMPLES`] samples nearest that pose (least squares, per
+    /// feature). Every feature counts whatever its length scale: a feature the kernel learned to
+    /// ignore (an occluded tile) still shows the frame is unlike any sample near its answer.
+    /// Infinite when a value overflows.
+    fn inconsistency(&self, standard: &[f64], pose: [f64; 2], poses: &[[f64; 2]]) -> f64 {
+        let dim = standard.len();
+        let mut near: Vec<(f64, usize)> = (poses.iter().enumerate())
+            .map(|(i, p)| ((p[0] - pose[0]).powi(2) + (p[1] - pose[1]).powi(2), i))
+            .collect();
+        let m = near.len().min(LOCAL_SAMPLES);
+        // Ties to the lower index, so the score does not depend on the sort.
+        near.select_nth_unstable_by(m - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let offsets: Vec<(Vector3<f64>, usize)> = (near[..m].iter())
+            .map(|&(_, i)| {
+                let u = Vector3::new(1.0, poses[i][0] - pose[0], poses[i][1] - pose[1]);
+                (u, i)
+            })
+            .collect();
+        // Normal equations of f ≈ a + b·(p − pose); a little ridge on the slopes keeps them
+        // solvable when the poses are collinear (then a is their mean).
+        let mut gram = Matrix3::<f64>::zeros();
+        for (u, _) in &offsets {
+            gram += u * u.transpose();
+        }
+        gram[(1, 1)] += 1e-9;
+        gram[(2, 2)] += 1e-9;
+        let Some(inverse) = gram.try_inverse() else {
+            return f64::INFINITY;
+        };
+        let row = inverse.row(0);
+        let squares: f64 = (0..dim)
+            .map(|d| {
+                let mut rhs = Vector3::zeros();
+                for (u, i) in &offsets {
+                    rhs += u * self.standard[i * dim + d];
+                }
+                (standard[d] - row.dot(&rhs.transpose())).powi(2)
+            })
+            .sum();
+        if squares.is_finite() {
+            squares.sqrt()
+        } else {
+            f64::INFINITY
+        }
     }
 }
 
@@ -479,3 +525,7 @@ pub(crate) fn check_settings(
 ) -> Result<(), String> {
     settings.gp.check().map_err(|e| format!("[gp]: {e}"))
 }
+
+#[cfg(test)]
+#[path = "gp_tests.rs"]
+mod tests;
