@@ -26,6 +26,7 @@
 //!   (`learn_velocity`; on coarse frames constant position wins).
 
 use std::path::Path;
+use std::sync::OnceLock;
 
 use serde::{Deserialize, Serialize};
 
@@ -66,8 +67,9 @@ pub struct TemporalEvidential {
     inner: Evidential,
     file: TemporalFile,
     /// The sample poses refined for the velocity prediction (`None` without two distinct
-    /// poses: the estimates stay on the samples' weights).
-    refinement: Option<Refinement>,
+    /// poses: the estimates stay on the samples' weights), built on the first frame that needs
+    /// it: it was half of loading a model file, and per-frame estimates never need it.
+    refinement: OnceLock<Option<Refinement>>,
     /// The sample poses in buckets, for the dilation.
     buckets: PoseBuckets,
 }
@@ -165,15 +167,20 @@ impl TemporalEvidential {
     }
 
     fn assemble(inner: Evidential, file: TemporalFile) -> Self {
-        let poses = inner.tracker().model().poses();
-        let refinement = Refinement::new(poses);
-        let buckets = PoseBuckets::new(poses);
+        let buckets = PoseBuckets::new(inner.tracker().model().poses());
         Self {
             inner,
             file,
-            refinement,
+            refinement: OnceLock::new(),
             buckets,
         }
+    }
+
+    /// The refined sample poses, built on first use.
+    fn refinement(&self) -> Option<&Refinement> {
+        self.refinement
+            .get_or_init(|| Refinement::new(self.inner.tracker().model().poses()))
+            .as_ref()
     }
 
     /// The settings it was fitted with.
@@ -328,8 +335,8 @@ impl EvidentialMotion<'_> {
     /// at `time`; `None` when there is no prediction (fewer than two estimates since the last
     /// restart) or no refinement.
     fn refined(&self, time: f64, weights: &[f64]) -> Option<[f64; 2]> {
-        let refinement = self.estimator.refinement.as_ref()?;
         let predicted = self.line.predict(time)?;
+        let refinement = self.estimator.refinement()?;
         let spread = self.spread(refinement);
         let map = self.estimator.inner.tracker().settings().estimator == PoseRule::Map;
         refinement.estimate(weights, predicted, spread, map)

@@ -31,6 +31,8 @@ pub(super) struct PairTuples {
     /// Tuples of pair (i, j) are `tuples[start[i * features + j]..start[i * features + j + 1]]`.
     start: Vec<usize>,
     tuples: Vec<(u32, u32)>,
+    /// Per feature, its states occurring on the cells in order of first occurrence.
+    states: Vec<Vec<u32>>,
 }
 
 impl PairTuples {
@@ -59,11 +61,27 @@ impl PairTuples {
                 start.push(tuples.len());
             }
         }
+        let states = to_cells
+            .iter()
+            .map(|r| {
+                let mut seen = vec![false; r.coarse_size()];
+                (r.assignment().iter())
+                    .filter(|&&a| !std::mem::replace(&mut seen[a], true))
+                    .map(|&a| a as u32)
+                    .collect()
+            })
+            .collect();
         PairTuples {
             features: f,
             start,
             tuples,
+            states,
         }
+    }
+
+    /// The states of feature `i` occurring on the cells, in order of first occurrence.
+    pub(super) fn states(&self, i: usize) -> &[u32] {
+        &self.states[i]
     }
 
     /// The state pairs of features `i < j` occurring on the cells, in order of first occurrence.

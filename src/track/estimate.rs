@@ -17,12 +17,12 @@ impl Tracker {
     ) -> Option<Vec<f64>> {
         let cells = self.cell_count();
         let mut w = vec![1.0; cells];
-        for (u, wu) in w.iter_mut().enumerate() {
-            for (i, m) in usable.iter().enumerate() {
-                if group >> i & 1 == 1 {
-                    if let Some(m) = m {
-                        *wu *= m.contour[self.to_cells[i].assignment()[u]];
-                    }
+        // Member by member over the cells: each cell's product still takes its factors in
+        // member order, so the same bits as cell by cell, without a test per cell and member.
+        for (i, m) in usable.iter().enumerate() {
+            if let (true, Some(m)) = (group >> i & 1 == 1, m) {
+                for (wu, &s) in w.iter_mut().zip(self.to_cells[i].assignment()) {
+                    *wu *= m.contour[s];
                 }
             }
         }

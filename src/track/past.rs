@@ -41,6 +41,9 @@ struct PastLevels<'a> {
     /// The cells of the largest `cell_max`, where [`PastLevels::proven_within`] looks for a
     /// witness of agreement with the past.
     peaks: [usize; PEAKS],
+    /// Σ_s contour(s) of every usable feature (0 for the others), for
+    /// [`PastLevels::proven_within`].
+    contour_sums: Vec<f64>,
 }
 
 /// How many of the carried belief's highest cells witness a group's agreement with it.
@@ -68,6 +71,28 @@ fn peak_cells(cell_max: &[f64]) -> [usize; PEAKS] {
         peaks[count..].fill(last);
     }
     peaks
+}
+
+impl<'a> PastLevels<'a> {
+    /// The levels of a frame's `usable` features with the past as bit `past`, whose contour has
+    /// maximum `cell_max` on each cell.
+    fn new(
+        tracker: &'a Tracker,
+        usable: &'a [Option<Usable>],
+        past: usize,
+        cell_max: Vec<f64>,
+    ) -> Self {
+        PastLevels {
+            cells: tracker.cell_levels(usable),
+            past,
+            peaks: peak_cells(&cell_max),
+            cell_max,
+            memo: HashMap::new(),
+            contour_sums: (usable.iter())
+                .map(|u| u.as_ref().map_or(0.0, |u| u.contour.iter().sum::<f64>()))
+                .collect(),
+        }
+    }
 }
 
 impl PastLevels<'_> {
@@ -116,10 +141,10 @@ impl PastLevels<'_> {
         let mut witness = 0.0f64;
         let mut sums = 1.0;
         for i in members(group) {
-            let Some(feature) = self.cells.usable[i].as_ref() else {
+            if self.cells.usable[i].is_none() {
                 return false;
-            };
-            sums *= feature.contour.iter().sum::<f64>();
+            }
+            sums *= self.contour_sums[i];
         }
         for &k in &self.peaks {
             let Some(&(mut p)) = self.cell_max.get(k) else {
@@ -356,7 +381,8 @@ impl Tracker {
                 ),
             });
         }
-        let alone = self.track(likelihoods)?;
+        let (usable, issues) = self.measure(likelihoods)?;
+        let alone = self.track_measured(&usable, issues);
         let frame_alone = PastFrame {
             frame: alone.clone(),
             past_joined: false,
@@ -364,7 +390,6 @@ impl Tracker {
         if alone.flags.no_usable_feature {
             return Ok(frame_alone);
         }
-        let (usable, _) = self.measure(likelihoods)?;
         let f = usable.len();
         let usable_mask = (0..f)
             .filter(|&i| usable[i].is_some())
@@ -373,13 +398,7 @@ impl Tracker {
         for (&u, &c) in self.cell_of.iter().zip(carried) {
             cell_max[u] = cell_max[u].max(c);
         }
-        let mut levels = PastLevels {
-            cells: self.cell_levels(&usable),
-            past: f,
-            peaks: peak_cells(&cell_max),
-            cell_max,
-            memo: HashMap::new(),
-        };
+        let mut levels = PastLevels::new(self, &usable, f, cell_max);
         let (features, level) = if self.settings.combine == Combine::All {
             // Every usable feature and the past, whatever their conflict.
             (usable_mask, levels.group_level(usable_mask | 1 << f))

@@ -74,13 +74,7 @@ fn the_tuple_sums_give_the_combinations_agreement_with_the_past() {
         for (&u, &c) in tracker.cell_of.iter().zip(&carried) {
             cell_max[u] = cell_max[u].max(c);
         }
-        let mut levels = PastLevels {
-            cells: tracker.cell_levels(&usable),
-            past: 3,
-            peaks: super::peak_cells(&cell_max),
-            cell_max: cell_max.clone(),
-            memo: std::collections::HashMap::new(),
-        };
+        let mut levels = PastLevels::new(&tracker, &usable, 3, cell_max.clone());
         for group in 1..8u64 {
             let fast = levels.cells.bayesian_agreement(group, &cell_max).unwrap();
             let combined = levels.combined_agreement(group).unwrap_or(0.0);
@@ -98,6 +92,39 @@ fn the_tuple_sums_give_the_combinations_agreement_with_the_past() {
         cells.bayesian_agreement(0b11, &vec![1.0; tracker.cell_count()]),
         None
     );
+}
+
+#[test]
+fn a_feature_or_pair_agrees_with_the_past_as_its_grown_tuples_bit_for_bit() {
+    use rand::{Rng, SeedableRng};
+    let tracker = tiny_tracker(Constructor::Bayesian);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+    for round in 0..200 {
+        // Impossible states now and then (a zero cube), and tiny values.
+        let mut draw = |n: usize| -> Option<Vec<f64>> {
+            Some(
+                (0..n)
+                    .map(|_| rng.random_range(-0.2f64..1.0).max(0.0).powi(5))
+                    .collect(),
+            )
+        };
+        let lik = vec![draw(2), draw(3), draw(2)];
+        let cell_max: Vec<f64> = (0..tracker.cell_count())
+            .map(|_| rng.random::<f64>().powi(3))
+            .collect();
+        let (usable, _) = tracker.measure(&lik).unwrap();
+        let mut stack = crate::track::tuples::TupleStack::default();
+        for group in [0b001u64, 0b010, 0b100, 0b011, 0b101, 0b110] {
+            let direct =
+                (stack.small_agreement(&tracker, &usable, group, &cell_max)).expect("small tables");
+            let grown = stack.grown_agreement(&tracker, &usable, group, &cell_max);
+            assert_eq!(
+                direct.map(f64::to_bits),
+                grown.map(f64::to_bits),
+                "round {round}, group {group:b}"
+            );
+        }
+    }
 }
 
 #[test]
@@ -144,7 +171,7 @@ fn the_peaks_are_the_largest_cells() {
 
 #[test]
 fn a_proven_group_is_within_the_threshold_and_the_choice_is_unchanged() {
-    use super::{group_beside_past, group_beside_past_proven, peak_cells, PastLevels};
+    use super::{group_beside_past, group_beside_past_proven, PastLevels};
     use crate::evidence::ConflictLevel;
     use crate::track::GroupLevels;
     use rand::{Rng, SeedableRng};
@@ -167,13 +194,7 @@ fn a_proven_group_is_within_the_threshold_and_the_choice_is_unchanged() {
         for (&u, &c) in tracker.cell_of.iter().zip(&carried) {
             cell_max[u] = cell_max[u].max(c);
         }
-        let fresh = || PastLevels {
-            cells: tracker.cell_levels(&usable),
-            past: 3,
-            peaks: peak_cells(&cell_max),
-            cell_max: cell_max.clone(),
-            memo: std::collections::HashMap::new(),
-        };
+        let fresh = || PastLevels::new(&tracker, &usable, 3, cell_max.clone());
         let mut levels = fresh();
         for group in [1u64, 2, 4, 3, 5, 6] {
             if levels.proven_within(group, threshold) {

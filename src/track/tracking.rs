@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use super::estimate::Weighed;
 use super::group_search::{lex, GroupMask, Selection};
 use super::settings::Combine;
-use super::tracker::{Alternative, FrameEstimate, FrameFlags, Tracker};
+use super::tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Usable};
 use super::TrackError;
 
 impl Tracker {
@@ -60,6 +60,16 @@ impl Tracker {
     /// [`TrackError::FeatureInputCount`] when the number of entries is not the number of features.
     pub fn track(&self, likelihoods: &[Option<Vec<f64>>]) -> Result<FrameEstimate, TrackError> {
         let (usable, issues) = self.measure(likelihoods)?;
+        Ok(self.track_measured(&usable, issues))
+    }
+
+    /// [`Tracker::track`] of a frame already measured (the tracker with the past measures once
+    /// for both of its candidates).
+    pub(super) fn track_measured(
+        &self,
+        usable: &[Option<Usable>],
+        issues: Vec<(usize, FeatureIssue)>,
+    ) -> FrameEstimate {
         let f = usable.len();
         let mut flags = FrameFlags {
             unusable: issues,
@@ -70,31 +80,31 @@ impl Tracker {
             .fold(0, |m: GroupMask, i| m | 1 << i);
         if usable_mask == 0 {
             flags.no_usable_feature = true;
-            return Ok(FrameEstimate::without_estimate(flags));
+            return FrameEstimate::without_estimate(flags);
         }
         let Selection {
             chosen,
             alternatives,
             fallback,
         } = if self.settings.combine == Combine::All {
-            let level = self.level(usable_mask, &usable, &mut HashMap::new(), f64::INFINITY);
+            let level = self.level(usable_mask, usable, &mut HashMap::new(), f64::INFINITY);
             Selection {
                 chosen: Some((level, usable_mask)),
                 alternatives: Vec::new(),
                 fallback: false,
             }
         } else {
-            self.select(&usable, usable_mask)
+            self.select(usable, usable_mask)
         };
         flags.fallback = fallback;
         let Some((level, group)) = chosen else {
             flags.no_usable_feature = true;
-            return Ok(FrameEstimate::without_estimate(flags));
+            return FrameEstimate::without_estimate(flags);
         };
         let mut alts = Vec::with_capacity(alternatives.len());
         let mut alt_plausibility = Vec::with_capacity(alternatives.len());
         for &(k, g) in &alternatives {
-            if let Some((estimate, pl, uncertainty)) = self.estimate_group(g, &usable) {
+            if let Some((estimate, pl, uncertainty)) = self.estimate_group(g, usable) {
                 alts.push(Alternative {
                     group: lex(g),
                     conflict_level: k,
@@ -108,7 +118,7 @@ impl Tracker {
         let full_level = if group == usable_mask && !fallback {
             level
         } else {
-            self.level(usable_mask, &usable, &mut HashMap::new(), f64::INFINITY)
+            self.level(usable_mask, usable, &mut HashMap::new(), f64::INFINITY)
         };
         let (result, group, level) = match self.weigh_alternatives(&alt_plausibility) {
             Some(Weighed {
@@ -134,12 +144,12 @@ impl Tracker {
                 (Some(a), Some((g, pl))) if *g == group => {
                     (Some((a.estimate, pl.clone(), a.uncertainty)), group, level)
                 }
-                _ => (self.estimate_group(group, &usable), group, level),
+                _ => (self.estimate_group(group, usable), group, level),
             },
         };
         flags.excluded = lex(usable_mask & !group);
         flags.combination_failed = result.is_none();
-        Ok(FrameEstimate {
+        FrameEstimate {
             estimate: result.as_ref().map(|r| r.0),
             group: lex(group),
             conflict_level: Some(level),
@@ -148,7 +158,7 @@ impl Tracker {
             plausibility: result.map(|r| r.1).unwrap_or_default(),
             alternatives: alts,
             flags,
-        })
+        }
     }
 }
 

@@ -35,6 +35,10 @@ pub(super) struct TupleStack {
     top: Vec<f64>,
 }
 
+/// The largest table of state pairs [`TupleStack::small_agreement`] fills (or twice the
+/// cells, if more): beyond it, growing the pair's tuples costs less.
+const SMALL_TABLE: usize = 4096;
+
 thread_local! {
     /// The buffers the last frame on this thread left, for the next one (a frame's search asks
     /// for thousands of groups; without this each frame allocated its buffers anew).
@@ -94,6 +98,84 @@ impl TupleStack {
     /// `cell_max` on t's cells: 1 − K(m_group, C) for a consonant C of that cell contour (the
     /// contours' scales cancel). `None` when the sum underflows (the caller combines instead).
     pub(super) fn agreement(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+        cell_max: &[f64],
+    ) -> Option<f64> {
+        if matches!(group.count_ones(), 1 | 2) {
+            if let Some(agree) = self.small_agreement(tracker, usable, group, cell_max) {
+                return agree;
+            }
+        }
+        self.grown_agreement(tracker, usable, group, cell_max)
+    }
+
+    /// [`TupleStack::agreement`] of one feature or a pair without growing its tuples: the model
+    /// lists them in order of first occurrence on the cells (the order the grown ones are
+    /// numbered in), and their products are the same (1·c is c; then c_i·c_j), so the sums are
+    /// the same bits; each tuple's largest cell value comes from a table over the state pairs.
+    /// `None` (outer) when the table would be large: grow instead. `group` holds one or two
+    /// features.
+    pub(super) fn small_agreement(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+        cell_max: &[f64],
+    ) -> Option<Option<f64>> {
+        let (i, j) = (
+            group.trailing_zeros() as usize,
+            63 - group.leading_zeros() as usize,
+        );
+        let (a, b) = match (usable.get(i)?, usable.get(j)?) {
+            (Some(a), Some(b)) => (a, b),
+            _ => return Some(None),
+        };
+        let states_i = tracker.to_cells[i].assignment();
+        let top = &mut self.top;
+        top.clear();
+        let (mut agree, mut total, mut positive) = (0.0, 0.0, false);
+        if i == j {
+            top.resize(tracker.to_cells[i].coarse_size(), 0.0);
+            for (&s, &c) in states_i.iter().zip(cell_max) {
+                top[s] = top[s].max(c);
+            }
+            for &s in tracker.pair_tuples.states(i) {
+                let p = a.contour[s as usize];
+                agree += p * top[s as usize];
+                total += p;
+                positive |= p > 0.0;
+            }
+        } else {
+            let nb = tracker.to_cells[j].coarse_size();
+            let size = tracker.to_cells[i].coarse_size() * nb;
+            if size > SMALL_TABLE.max(2 * cell_max.len()) {
+                return None;
+            }
+            top.resize(size, 0.0);
+            let states_j = tracker.to_cells[j].assignment();
+            for ((&x, &y), &c) in states_i.iter().zip(states_j).zip(cell_max) {
+                let t = &mut top[x * nb + y];
+                *t = t.max(c);
+            }
+            for &(x, y) in tracker.pair_tuples.of(i, j) {
+                let (ca, cb) = (a.contour[x as usize], b.contour[y as usize]);
+                let p = ca * cb;
+                agree += p * top[x as usize * nb + y as usize];
+                total += p;
+                positive |= ca > 0.0 && cb > 0.0;
+            }
+        }
+        if !positive {
+            return Some(Some(0.0));
+        }
+        Some((total.is_finite() && total > 1e-280).then_some(agree / total))
+    }
+
+    /// [`TupleStack::agreement`] on the group's grown tuples.
+    pub(super) fn grown_agreement(
         &mut self,
         tracker: &Tracker,
         usable: &[Option<Usable>],

@@ -17,6 +17,8 @@ pub struct PoseBuckets {
     /// The members' coordinates, in bucket order.
     xs: Vec<f64>,
     ys: Vec<f64>,
+    /// Each bucket's box around its members ([x0, x1, y0, y1]; empty buckets never looked at).
+    boxes: Vec<[f64; 4]>,
 }
 
 /// About this many poses per bucket.
@@ -62,6 +64,7 @@ impl PoseBuckets {
             members: vec![0; poses.len()],
             xs: Vec::new(),
             ys: Vec::new(),
+            boxes: Vec::new(),
         };
         let of: Vec<usize> = poses.iter().map(|p| buckets.bucket_of(*p)).collect();
         for &b in &of {
@@ -83,6 +86,26 @@ impl PoseBuckets {
                 .collect()
         };
         (buckets.xs, buckets.ys) = (at(0), at(1));
+        buckets.boxes = (0..size[0] * size[1])
+            .map(|b| {
+                let range = buckets.start[b]..buckets.start[b + 1];
+                let mut bounds = [
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                ];
+                for (&x, &y) in buckets.xs[range.clone()].iter().zip(&buckets.ys[range]) {
+                    bounds = [
+                        bounds[0].min(x),
+                        bounds[1].max(x),
+                        bounds[2].min(y),
+                        bounds[3].max(y),
+                    ];
+                }
+                bounds
+            })
+            .collect();
         buckets
     }
 
@@ -97,11 +120,13 @@ impl PoseBuckets {
 
     /// The bucket index of coordinate `x` along axis `d`, clamped to the grid.
     fn index(&self, d: usize, x: f64) -> usize {
-        let k = ((x - self.origin[d]) / self.side).floor();
-        if k.is_nan() || k <= 0.0 {
-            0
-        } else {
+        // Truncation is the floor above 0, and everything up to 1 (or NaN) goes to 0 anyway:
+        // no call to `floor`, which the dilation made 4 times per pose.
+        let k = (x - self.origin[d]) / self.side;
+        if k > 0.0 {
             (k as usize).min(self.size[d] - 1)
+        } else {
+            0
         }
     }
 
@@ -145,11 +170,12 @@ impl PoseBuckets {
                 }
                 // One bucket beyond the disc's box on each side absorbs any rounding of the
                 // bucket indices.
-                let [(i0, i1), (j0, j1)] = [0, 1].map(|d| {
-                    let r = reach.abs();
+                let r = reach.abs();
+                let span = |d: usize| {
                     let (a, b) = (self.index(d, target[d] - r), self.index(d, target[d] + r));
                     (a.saturating_sub(1), (b + 1).min(self.size[d] - 1))
-                });
+                };
+                let ((i0, i1), (j0, j1)) = (span(0), span(1));
                 let mut best = 0.0f64;
                 for j in j0..=j1 {
                     let row = j * self.size[0];
@@ -159,10 +185,16 @@ impl PoseBuckets {
                         if largest <= best {
                             continue;
                         }
-                        for k in self.start[b]..self.start[b + 1] {
-                            let q = [xs[k], ys[k]];
-                            if within(&q, target) {
-                                best = best.max(values[k]);
+                        match reached(&self.boxes[b], target, r2) {
+                            Reached::All => best = largest,
+                            Reached::None => {}
+                            Reached::Some => {
+                                for k in self.start[b]..self.start[b + 1] {
+                                    let q = [xs[k], ys[k]];
+                                    if within(&q, target) {
+                                        best = best.max(values[k]);
+                                    }
+                                }
                             }
                         }
                     }
@@ -170,6 +202,42 @@ impl PoseBuckets {
                 best
             })
             .collect()
+    }
+}
+
+/// How many of a bucket's members lie within the disc.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Reached {
+    All,
+    None,
+    Some,
+}
+
+/// Which members of a bucket with box `b` = [x0, x1, y0, y1] the disc of squared radius `r2`
+/// around `t` holds, as the direct scan's test would find them: a difference, its square and a
+/// sum are rounded monotonically, so a member's computed squared distance lies between those of
+/// the box's nearest and farthest corners, computed the same way.
+fn reached(b: &[f64; 4], t: [f64; 2], r2: f64) -> Reached {
+    let (far_x, far_y) = (
+        (b[0] - t[0]).powi(2).max((b[1] - t[0]).powi(2)),
+        (b[2] - t[1]).powi(2).max((b[3] - t[1]).powi(2)),
+    );
+    if far_x + far_y <= r2 {
+        return Reached::All;
+    }
+    let near = |lo: f64, hi: f64, x: f64| {
+        if x < lo {
+            (lo - x).powi(2)
+        } else if x > hi {
+            (hi - x).powi(2)
+        } else {
+            0.0
+        }
+    };
+    if near(b[0], b[1], t[0]) + near(b[2], b[3], t[1]) <= r2 {
+        Reached::Some
+    } else {
+        Reached::None
     }
 }
 
@@ -220,6 +288,46 @@ mod tests {
             dilate(&poses, &contour, 0.6, [1.0, 0.0]),
             vec![0.0, 0.0, 1.0, 0.2]
         );
+    }
+
+    #[test]
+    fn a_box_reached_whole_or_not_at_all_says_so_of_every_member() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut seen = [0usize; 3];
+        for _ in 0..20_000 {
+            // Members on a coarse lattice, so that distances often equal the radius exactly.
+            let mut at = || 0.25 * rng.random_range(-8i32..8) as f64;
+            let members: Vec<[f64; 2]> = (0..3).map(|_| [at(), at()]).collect();
+            let target = [at(), at()];
+            let r2 = [0.0, 0.0625, 0.5, 1.0, 2.25, 4.0][rng.random_range(0..6)];
+            let mut bounds = [
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            ];
+            for m in &members {
+                bounds = [
+                    bounds[0].min(m[0]),
+                    bounds[1].max(m[0]),
+                    bounds[2].min(m[1]),
+                    bounds[3].max(m[1]),
+                ];
+            }
+            let inside = members
+                .iter()
+                .filter(|q| (q[0] - target[0]).powi(2) + (q[1] - target[1]).powi(2) <= r2)
+                .count();
+            let reach = reached(&bounds, target, r2);
+            match reach {
+                Reached::All => assert_eq!(inside, members.len()),
+                Reached::None => assert_eq!(inside, 0),
+                Reached::Some => {}
+            }
+            seen[reach as usize] += 1;
+        }
+        // Each answer was exercised.
+        assert!(seen.iter().all(|&n| n > 100), "{seen:?}");
     }
 
     #[test]
