@@ -474,7 +474,7 @@ impl Factor {
     /// less a plane through the [`LOCAL_SAMPLES`] samples nearest that pose (least squares, per
     /// feature). Every feature counts whatever its length scale: a feature the kernel learned to
     /// ignore (an occluded tile) still shows the frame is unlike any sample near its answer.
-    /// Infinite when a value overflows.
+    /// Infinite only when a residual itself overflows.
     fn inconsistency(&self, standard: &[f64], pose: [f64; 2], poses: &[[f64; 2]]) -> f64 {
         let dim = standard.len();
         let mut near: Vec<(f64, usize)> = (poses.iter().enumerate())
@@ -501,19 +501,21 @@ impl Factor {
             return f64::INFINITY;
         };
         let row = inverse.row(0);
-        let squares: f64 = (0..dim)
+        let residuals: Vec<f64> = (0..dim)
             .map(|d| {
                 let mut rhs = Vector3::zeros();
                 for (u, i) in &offsets {
                     rhs += u * self.standard[i * dim + d];
                 }
-                (standard[d] - row.dot(&rhs.transpose())).powi(2)
+                standard[d] - row.dot(&rhs.transpose())
             })
-            .sum();
+            .collect();
+        let squares: f64 = residuals.iter().map(|r| r.powi(2)).sum();
         if squares.is_finite() {
             squares.sqrt()
         } else {
-            f64::INFINITY
+            // A frame far beyond the samples overflows the squares: the norm itself.
+            super::inputs::scaled_norm(residuals.iter().copied())
         }
     }
 }
