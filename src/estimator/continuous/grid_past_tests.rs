@@ -19,19 +19,7 @@ fn the_pasts_bounds_keep_what_the_full_computation_keeps() {
     for k in 0..24 {
         let q = workspace_points(1, &mut rng)[0];
         let row = feature_row(features, q, 0.002, &mut rng);
-        let past = PastTerm {
-            centre: [
-                q[0] + rng.random_range(-3.0..3.0),
-                q[1] + rng.random_range(-3.0..3.0),
-            ],
-            reach: rng.random_range(0.0..3.0),
-            scale: 10f64.powf(rng.random_range(-2.0..0.5)),
-            reliability: if k % 2 == 0 {
-                1.0
-            } else {
-                rng.random_range(0.5..1.0)
-            },
-        };
+        let past = random_past(q, 3.0, 3.0, k % 2 == 0, &mut rng);
         let values = model.usable(row);
         let mut bounded = Frame::new(&model, values.clone()).with_past(past);
         let mut full = Frame::new(&model, values).with_past(past);
@@ -123,19 +111,7 @@ fn groups_proven_beside_the_past_are_within_the_threshold() {
             if k % 4 == 0 {
                 row[k % features] = row[k % features].map(|v| v + 5.0);
             }
-            let past = PastTerm {
-                centre: [
-                    q[0] + rng.random_range(-1.0..1.0),
-                    q[1] + rng.random_range(-1.0..1.0),
-                ],
-                reach: rng.random_range(0.0..4.0),
-                scale: 10f64.powf(rng.random_range(-2.0..0.5)),
-                reliability: if k % 2 == 0 {
-                    1.0
-                } else {
-                    rng.random_range(0.5..1.0)
-                },
-            };
+            let past = random_past(q, 1.0, 4.0, k % 2 == 0, &mut rng);
             let values = model.usable(row);
             let mut frame = Frame::new(&model, values.clone()).with_past(past);
             let usable = frame.usable_mask;
@@ -178,4 +154,28 @@ fn groups_proven_beside_the_past_are_within_the_threshold() {
     }
     // Most frames near the prediction prove their own choice.
     assert!(proven_frames > 30, "{proven_frames} of 80");
+}
+
+/// A past centred within `offset` mm of `q` on each axis, with a reach below `max_reach`, a
+/// random scale, and full reliability when `reliable`.
+fn random_past(
+    q: [f64; 2],
+    offset: f64,
+    max_reach: f64,
+    reliable: bool,
+    rng: &mut ChaCha8Rng,
+) -> PastTerm {
+    PastTerm {
+        centre: [
+            q[0] + rng.random_range(-offset..offset),
+            q[1] + rng.random_range(-offset..offset),
+        ],
+        reach: rng.random_range(0.0..max_reach),
+        scale: 10f64.powf(rng.random_range(-2.0..0.5)),
+        reliability: if reliable {
+            1.0
+        } else {
+            rng.random_range(0.5..1.0)
+        },
+    }
 }
