@@ -344,6 +344,22 @@ fn best_model_and_its_baselines_meet_their_expectations() {
     assert!(close(region.mean_area, 0.001811), "{region:?}");
 }
 
+/// `best.toml`'s adaptive mesh (seed 1) meets its expectations. The `tuned` variant (each
+/// feature's state count tuned by tracking, 35 s of fitting alone) is held only by
+/// `sweep scenarios/best.toml --check`, outside CI.
+#[test]
+fn best_adaptive_mesh_meets_its_expectations() {
+    for (name, output) in crate::run_variants("best.toml", Some(&["adaptive"])) {
+        let regressions = output.summary.regressions();
+        assert!(regressions.is_empty(), "{name}: {regressions:#?}");
+        assert!(
+            output.summary.samples <= 1521,
+            "{name}: {}",
+            output.summary.samples
+        );
+    }
+}
+
 /// Every variant of a scenario file, run on two threads, in the file's order.
 fn run_file(file: &str) -> Vec<RunSummary> {
     crate::run_every_variant(file)
