@@ -2,7 +2,7 @@
 //! grown one feature at a time) against the exhaustive enumeration, on random frames with stuck
 //! and outlying features.
 
-use super::super::group_search::select_group_exhaustive;
+use super::super::group_search::{present_mask, select_group_exhaustive};
 use super::*;
 use crate::evidence::{ConflictLevel, Refining};
 use crate::track::{SelectionPolicy, TrackSettings, TrackedFeature, TrackerModel};
@@ -113,9 +113,7 @@ fn the_pruned_selection_equals_the_exhaustive_one_on_random_frames_with_faulty_f
             for _frame in 0..6 {
                 let lik = random_frame(&mut rng, &specs);
                 let (usable, _) = tracker.measure(&lik).unwrap();
-                let all = (0..n)
-                    .filter(|&i| usable[i].is_some())
-                    .fold(0, |m: GroupMask, i| m | 1 << i);
+                let all = present_mask(&usable);
                 let full = tracker.raw_level(all, &usable);
                 // Thresholds around the frame's own full level, so that some groups pass.
                 let thresholds = [0.3, 0.6, 0.9, 1.1].map(|f| ConflictLevel::from_value(f * full));
@@ -153,9 +151,7 @@ fn floors_without_one_feature_never_exceed_the_levels_they_bound() {
         for _frame in 0..6 {
             let lik = random_frame(&mut rng, &specs);
             let (usable, _) = tracker.measure(&lik).unwrap();
-            let all = (0..n)
-                .filter(|&i| usable[i].is_some())
-                .fold(0, |m: GroupMask, i| m | 1 << i);
+            let all = present_mask(&usable);
             let floors = tracker
                 .cell_levels(&usable)
                 .floors_without_one(all)

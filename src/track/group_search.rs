@@ -28,6 +28,13 @@ use exhaustive::every_clique;
 /// A group of features as a bit mask: bit `i` is feature `i`.
 pub type GroupMask = u64;
 
+/// The group of the features present in `values` (`Some`).
+pub fn present_mask<T>(values: &[Option<T>]) -> GroupMask {
+    (values.iter().enumerate())
+        .filter(|(_, v)| v.is_some())
+        .fold(0, |m, (i, _)| m | 1 << i)
+}
+
 /// Two levels of conflict closer than this are a tie.
 pub(super) const TIE: f64 = 1e-12;
 

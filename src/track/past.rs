@@ -12,7 +12,7 @@
 use std::collections::HashMap;
 
 use super::cell_levels::CellLevels;
-use super::group_search::{members, select_group, GroupLevels, GroupMask};
+use super::group_search::{members, present_mask, select_group, GroupLevels, GroupMask};
 use super::settings::{Combine, SelectionPolicy};
 use super::tracker::{FrameEstimate, Tracker, Usable};
 use super::TrackError;
@@ -262,26 +262,13 @@ pub fn group_beside_past(
     policy: SelectionPolicy,
     threshold: ConflictLevel,
 ) -> (GroupMask, f64) {
-    group_beside_past_proven(levels, usable, past, policy, threshold, |_, _| false)
-}
-
-/// [`group_beside_past`] for a tracker that can prove some groups of one or two features within
-/// the threshold with the past without their level: `proven` is asked with the features' mask
-/// and must never say so of a group that is not (the continuous tracker over time, issue 32).
-pub fn group_beside_past_with<L: GroupLevels>(
-    levels: &mut L,
-    usable: GroupMask,
-    past: usize,
-    policy: SelectionPolicy,
-    threshold: ConflictLevel,
-    proven: impl FnMut(&mut L, GroupMask) -> bool,
-) -> (GroupMask, f64) {
-    group_beside_past_proven(levels, usable, past, policy, threshold, proven)
+    group_beside_past_with(levels, usable, past, policy, threshold, |_, _| false)
 }
 
 /// [`group_beside_past`], with `proven` telling which groups of one or two features are within
-/// the threshold with the past without their level (it must never say so of one that is not).
-fn group_beside_past_proven<L: GroupLevels>(
+/// the threshold with the past without their level (it must never say so of one that is not;
+/// the evidential tracker's peak cells, the continuous tracker's own choice, issue 32).
+pub fn group_beside_past_with<L: GroupLevels>(
     levels: &mut L,
     usable: GroupMask,
     past: usize,
@@ -391,9 +378,7 @@ impl Tracker {
             return Ok(frame_alone);
         }
         let f = usable.len();
-        let usable_mask = (0..f)
-            .filter(|&i| usable[i].is_some())
-            .fold(0, |m: GroupMask, i| m | 1 << i);
+        let usable_mask = present_mask(&usable);
         let mut cell_max = vec![0.0f64; self.cell_count()];
         for (&u, &c) in self.cell_of.iter().zip(carried) {
             cell_max[u] = cell_max[u].max(c);
@@ -404,7 +389,7 @@ impl Tracker {
             (usable_mask, levels.group_level(usable_mask | 1 << f))
         } else {
             let threshold = self.settings.conflict_threshold;
-            let (features, level) = group_beside_past_proven(
+            let (features, level) = group_beside_past_with(
                 &mut levels,
                 usable_mask,
                 f,

@@ -171,7 +171,7 @@ fn the_peaks_are_the_largest_cells() {
 
 #[test]
 fn a_proven_group_is_within_the_threshold_and_the_choice_is_unchanged() {
-    use super::{group_beside_past, group_beside_past_proven, PastLevels};
+    use super::{group_beside_past, group_beside_past_with, PastLevels};
     use crate::evidence::ConflictLevel;
     use crate::track::GroupLevels;
     use rand::{Rng, SeedableRng};
@@ -205,7 +205,7 @@ fn a_proven_group_is_within_the_threshold_and_the_choice_is_unchanged() {
         }
         let policy = crate::track::SelectionPolicy::LargestSubset;
         let plain = group_beside_past(&mut fresh(), 0b111, 3, policy, threshold);
-        let fast = group_beside_past_proven(&mut fresh(), 0b111, 3, policy, threshold, {
+        let fast = group_beside_past_with(&mut fresh(), 0b111, 3, policy, threshold, {
             |l: &mut PastLevels, g| l.proven_within(g, threshold)
         });
         assert_eq!(plain.0, fast.0, "round {round}");

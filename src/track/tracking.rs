@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 
 use super::estimate::Weighed;
-use super::group_search::{lex, GroupMask, Selection};
+use super::group_search::{lex, present_mask, GroupMask, Selection};
 use super::settings::Combine;
 use super::tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Usable};
 use super::TrackError;
@@ -70,14 +70,11 @@ impl Tracker {
         usable: &[Option<Usable>],
         issues: Vec<(usize, FeatureIssue)>,
     ) -> FrameEstimate {
-        let f = usable.len();
         let mut flags = FrameFlags {
             unusable: issues,
             ..FrameFlags::default()
         };
-        let usable_mask = (0..f)
-            .filter(|&i| usable[i].is_some())
-            .fold(0, |m: GroupMask, i| m | 1 << i);
+        let usable_mask = present_mask(usable);
         if usable_mask == 0 {
             flags.no_usable_feature = true;
             return FrameEstimate::without_estimate(flags);

@@ -39,6 +39,15 @@ pub(super) struct TupleStack {
 /// cells, if more): beyond it, growing the pair's tuples costs less.
 const SMALL_TABLE: usize = 4096;
 
+/// Σ p·c over Σ p of a group's tuples: 0 when no tuple is positive, `None` when the total is
+/// not a finite number above 1e-280.
+fn agreement_share(agree: f64, total: f64, positive: bool) -> Option<f64> {
+    if !positive {
+        return Some(0.0);
+    }
+    (total.is_finite() && total > 1e-280).then_some(agree / total)
+}
+
 thread_local! {
     /// The buffers the last frame on this thread left, for the next one (a frame's search asks
     /// for thousands of groups; without this each frame allocated its buffers anew).
@@ -168,10 +177,7 @@ impl TupleStack {
                 positive |= ca > 0.0 && cb > 0.0;
             }
         }
-        if !positive {
-            return Some(Some(0.0));
-        }
-        Some((total.is_finite() && total > 1e-280).then_some(agree / total))
+        Some(agreement_share(agree, total, positive))
     }
 
     /// [`TupleStack::agreement`] on the group's grown tuples.
@@ -195,10 +201,7 @@ impl TupleStack {
             agree += p * c;
             total += p;
         }
-        if !tuples.positive.iter().any(|&p| p) {
-            return Some(0.0);
-        }
-        (total.is_finite() && total > 1e-280).then_some(agree / total)
+        agreement_share(agree, total, tuples.positive.iter().any(|&p| p))
     }
 
     /// Keeps the longest prefix of `group` already built.

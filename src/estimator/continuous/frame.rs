@@ -94,9 +94,7 @@ impl<'a> Frame<'a> {
     /// The frame of `values` (one per feature, non-finite already `None`).
     pub(super) fn new(model: &'a Continuous, values: Vec<Option<f64>>) -> Self {
         let d = values.len();
-        let usable_mask = (0..d)
-            .filter(|&i| values[i].is_some())
-            .fold(0, |m: GroupMask, i| m | 1 << i);
+        let usable_mask = crate::track::present_mask(&values);
         let inv_sigma: Vec<f64> = model.file.residual_scales.iter().map(|s| 1.0 / s).collect();
         let mut sample_z2 = vec![0.0; model.sample_values.len()];
         for (z2, f) in sample_z2
