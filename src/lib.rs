@@ -74,5 +74,6 @@ pub mod report;
 pub mod scenario;
 pub mod seed;
 pub mod sim;
+mod simd;
 pub mod standardisation;
 pub mod track;

@@ -26,7 +26,7 @@ pub fn cholesky(mut matrix: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
     factored.then(|| Cholesky::pack_dirty(matrix))
 }
 
-super::simd::with_avx!(
+crate::simd::with_avx!(
     /// [`factor_in_place`], with AVX where the processor has it.
     fn factor(a: &mut [f64], n: usize) -> bool = factor_in_place
 );

@@ -17,7 +17,7 @@ pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
     inverse(l.as_slice(), l.nrows())
 }
 
-super::simd::with_avx!(
+crate::simd::with_avx!(
     /// [`inverse_of`], with AVX where the processor has it.
     fn inverse(l: &[f64], n: usize) -> Vec<f64> = inverse_of
 );

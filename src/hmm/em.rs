@@ -299,30 +299,6 @@ impl Workspace {
         }
     }
 
-    /// Forward recursion for any number of states.
-    fn forward_dyn(&mut self, p: &Params) -> Option<f64> {
-        let (n, k) = (self.n, self.k);
-        let mut log_scale = 0.0;
-        for j in 0..k {
-            self.alpha[j] = p.initial[j] * self.emis[j * n];
-        }
-        log_scale += Self::rescale(&mut self.alpha[..k], &mut self.inv_scale[0])?;
-        for t in 1..n {
-            let (done, todo) = self.alpha.split_at_mut(t * k);
-            let prev = &done[(t - 1) * k..];
-            let cur = &mut todo[..k];
-            for (j, c) in cur.iter_mut().enumerate() {
-                let mut s = 0.0;
-                for (i, a) in prev.iter().enumerate() {
-                    s += a * p.trans[i * k + j];
-                }
-                *c = s * self.emis[j * n + t];
-            }
-            log_scale += Self::rescale(cur, &mut self.inv_scale[t])?;
-        }
-        Some(log_scale)
-    }
-
     /// Backward pass with the E-step statistics; requires `forward` on the same parameters.
     /// Returns false on a numerical failure.
     fn backward(&mut self, y: &[f64], p: &Params) -> bool {
@@ -406,60 +382,6 @@ impl Workspace {
             self.gamma_first[i] *= r;
             for j in 0..K {
                 self.xi_sum[i * K + j] = trans[i][j] * outer[i][j] * r;
-            }
-        }
-        self.statistics_finite()
-    }
-
-    fn backward_dyn(&mut self, y: &[f64], p: &Params) -> bool {
-        let (n, k) = (self.n, self.k);
-        let total: f64 = self.alpha[(n - 1) * k..n * k].iter().sum();
-        if !(total > 0.0 && total.is_finite()) {
-            return false;
-        }
-        self.gamma_sum.fill(0.0);
-        self.gamma_y.fill(0.0);
-        self.gamma_yy.fill(0.0);
-        self.xi_sum.fill(0.0);
-        let mut beta = vec![1.0; k];
-        let mut w = vec![0.0; k];
-        for t in (0..n).rev() {
-            let alpha = &self.alpha[t * k..(t + 1) * k];
-            let yt = y[t];
-            for i in 0..k {
-                let g = alpha[i] * beta[i];
-                self.gamma_sum[i] += g;
-                self.gamma_y[i] += g * yt;
-                self.gamma_yy[i] += g * yt * yt;
-                if t == 0 {
-                    self.gamma_first[i] = g;
-                }
-            }
-            if t == 0 {
-                break;
-            }
-            let inv = self.inv_scale[t];
-            for (j, wj) in w.iter_mut().enumerate() {
-                *wj = self.emis[j * n + t] * beta[j] * inv;
-            }
-            let a_prev = &self.alpha[(t - 1) * k..t * k];
-            for i in 0..k {
-                let mut s = 0.0;
-                for (j, wj) in w.iter().enumerate() {
-                    s += p.trans[i * k + j] * wj;
-                    self.xi_sum[i * k + j] += a_prev[i] * wj;
-                }
-                beta[i] = s;
-            }
-        }
-        let r = 1.0 / total;
-        for i in 0..k {
-            self.gamma_sum[i] *= r;
-            self.gamma_y[i] *= r;
-            self.gamma_yy[i] *= r;
-            self.gamma_first[i] *= r;
-            for j in 0..k {
-                self.xi_sum[i * k + j] *= p.trans[i * k + j] * r;
             }
         }
         self.statistics_finite()
@@ -558,6 +480,9 @@ pub(super) fn em(
         },
     ))
 }
+
+#[path = "em_general.rs"]
+mod general;
 
 #[cfg(test)]
 #[path = "em_tests.rs"]

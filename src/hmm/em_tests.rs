@@ -167,3 +167,87 @@ fn fast_exp_matches_std_exp() {
     assert!(worst < 1e-14, "worst relative error {worst}");
     assert_eq!(exp_nonpositive(0.0), 1.0);
 }
+
+/// The general recursions as sums per state, one state after another: the vectorised
+/// `forward_dyn` and `backward_dyn` must give these bits exactly.
+#[test]
+fn general_recursions_are_the_sums_per_state_bit_for_bit() {
+    let ys: Vec<f64> = (0..250)
+        .map(|i| ((i as f64) * 0.23).sin() * 4.0 + ((i * 7) % 11) as f64 * 0.05)
+        .collect();
+    let n = ys.len();
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for k in [2, 7, 9, 16, 24] {
+        let p = init_kmeanspp(&ys, k, 1e-3, &mut rng);
+        let mut fast = Workspace::new(n, k);
+        fast.emissions(&ys, &p);
+        let scale = fast.forward_dyn(&p).unwrap();
+        assert!(fast.backward_dyn(&ys, &p));
+
+        let mut direct = Workspace::new(n, k);
+        direct.emissions(&ys, &p);
+        let mut direct_scale = 0.0;
+        for j in 0..k {
+            direct.alpha[j] = p.initial[j] * direct.emis[j * n];
+        }
+        direct_scale +=
+            Workspace::rescale(&mut direct.alpha[..k], &mut direct.inv_scale[0]).unwrap();
+        for t in 1..n {
+            for j in 0..k {
+                let mut s = 0.0;
+                for i in 0..k {
+                    s += direct.alpha[(t - 1) * k + i] * p.trans[i * k + j];
+                }
+                direct.alpha[t * k + j] = s * direct.emis[j * n + t];
+            }
+            let (_, cur) = direct.alpha.split_at_mut(t * k);
+            direct_scale += Workspace::rescale(&mut cur[..k], &mut direct.inv_scale[t]).unwrap();
+        }
+        assert_eq!(scale.to_bits(), direct_scale.to_bits(), "k={k}");
+        assert!(fast
+            .alpha
+            .iter()
+            .zip(&direct.alpha)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+
+        let mut beta = vec![1.0; k];
+        let mut xi = vec![0.0; k * k];
+        let mut gamma = vec![0.0; k];
+        for t in (1..n).rev() {
+            for i in 0..k {
+                gamma[i] += direct.alpha[t * k + i] * beta[i];
+            }
+            let w: Vec<f64> = (0..k)
+                .map(|j| direct.emis[j * n + t] * beta[j] * direct.inv_scale[t])
+                .collect();
+            for i in 0..k {
+                let mut s = 0.0;
+                for j in 0..k {
+                    s += p.trans[i * k + j] * w[j];
+                    xi[i * k + j] += direct.alpha[(t - 1) * k + i] * w[j];
+                }
+                beta[i] = s;
+            }
+        }
+        for i in 0..k {
+            gamma[i] += direct.alpha[i] * beta[i];
+        }
+        let total: f64 = direct.alpha[(n - 1) * k..].iter().sum();
+        let r = 1.0 / total;
+        for i in 0..k {
+            assert_eq!(
+                fast.gamma_sum[i].to_bits(),
+                (gamma[i] * r).to_bits(),
+                "k={k} γ {i}"
+            );
+            for j in 0..k {
+                let expected = xi[i * k + j] * (p.trans[i * k + j] * r);
+                assert_eq!(
+                    fast.xi_sum[i * k + j].to_bits(),
+                    expected.to_bits(),
+                    "k={k} ξ {i},{j}"
+                );
+            }
+        }
+    }
+}

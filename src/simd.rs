@@ -1,6 +1,7 @@
-//! Runs the tiled loops of the Cholesky factor and the inverse with 256-bit vectors where the
-//! processor has them (AVX: four multiplies or subtractions per instruction instead of two).
-//! Only the width changes: each lane still rounds every multiply and every subtraction on its
+//! Runs hot loops (the Gaussian process's Cholesky factor and inverse, the HMM's general
+//! recursions) with 256-bit vectors where the processor has them (AVX: four multiplies or
+//! additions per instruction instead of two).
+//! Only the width changes: each lane still rounds every multiply and every addition on its
 //! own (no fused multiply-add is enabled), so the bits are those of the plain build.
 //!
 //! A `#[target_feature]` function only widens code inlined into it, and a closure passed to a
@@ -28,4 +29,4 @@ macro_rules! with_avx {
         }
     };
 }
-pub(super) use with_avx;
+pub(crate) use with_avx;
