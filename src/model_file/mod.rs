@@ -288,7 +288,7 @@ fn present<'de, D: serde::Deserializer<'de>>(
 /// refused (so there is none to refuse). Otherwise `None`, and [`parse_checked`] reads the
 /// document, so every error is reported as it always was.
 fn probe_stamp(text: &str, refuse_nulls: bool) -> Option<serde_json::Value> {
-    if !text.trim_start().starts_with('{') || (refuse_nulls && text.contains("null")) {
+    if !text.trim_start().starts_with('{') || (refuse_nulls && null_outside_strings(text)) {
         return None;
     }
     let probe: StampProbe = serde_json::from_str(text).ok()?;
@@ -302,6 +302,29 @@ fn probe_stamp(text: &str, refuse_nulls: bool) -> Option<serde_json::Value> {
         }
     }
     Some(serde_json::Value::Object(stamp))
+}
+
+/// Whether `text` holds `null` outside its strings: in a well-formed document, whether it holds
+/// a `null` value (a model file embedded as a string, as the temporal evidential tracker's, holds
+/// the word in its text without holding the value).
+fn null_outside_strings(text: &str) -> bool {
+    // Past the last occurrence nothing can be one.
+    let Some(last) = text.rfind("null") else {
+        return false;
+    };
+    let bytes = text.as_bytes();
+    let mut in_string = false;
+    let mut k = 0;
+    while k <= last {
+        match bytes[k] {
+            b'\\' if in_string => k += 1,
+            b'"' => in_string = !in_string,
+            b'n' if !in_string && bytes[k..].starts_with(b"null") => return true,
+            _ => {}
+        }
+        k += 1;
+    }
+    false
 }
 
 /// The path of the first `null` in `value`.
@@ -419,6 +442,11 @@ mod tests {
             r#"{"format_version": 3, "method": "m", "value": null}"#,
             r#"{"format_version": null, "method": "m", "value": 1.5}"#,
             r#"{"format_version": 3, "method": null, "value": 1.5}"#,
+            // The word in a string is not a null: read as the document reads it.
+            r#"{"format_version": 3, "method": "null", "value": 1.5}"#,
+            r#"{"format_version": 3, "method": "m", "value": 1.5, "note": "a \"null\" \\"}"#,
+            r#"{"format_version": 3, "method": "m", "note": "\\", "value": null}"#,
+            r#"{"format_version": 3, "method": "m", "value": 1.5, "note": "null}"#,
             r#"[3, "m"]"#,
             "",
         ];
@@ -433,9 +461,21 @@ mod tests {
             }
         }
         // The well-formed objects without null took the probe.
-        assert!(probed >= 9, "{probed}");
+        assert!(probed >= 11, "{probed}");
         // Where nulls are taken, the objects with one took it too.
         assert!(probed_with_nulls >= probed + 3, "{probed_with_nulls}");
         assert!(parse::<File>(texts[0], "m", 3).is_ok());
+    }
+
+    #[test]
+    fn only_a_null_outside_strings_counts() {
+        assert!(!null_outside_strings(r#"{"a": "null", "b": "x\"null\""}"#));
+        assert!(null_outside_strings(r#"{"a": "\\", "b": null}"#));
+        assert!(null_outside_strings(r#"{"a": "null", "b": [1, null]}"#));
+        assert!(!null_outside_strings(r#"{"a": 1}"#));
+        // An embedded file with nulls of its own, as the temporal tracker writes it.
+        let inner = r#"{"feature_config": null, "x": [null]}"#;
+        let outer = serde_json::json!({ "method": "m", "inner": inner }).to_string();
+        assert!(!null_outside_strings(&outer), "{outer}");
     }
 }

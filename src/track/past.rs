@@ -44,6 +44,9 @@ struct PastLevels<'a> {
     /// Σ_s contour(s) of every usable feature (0 for the others), for
     /// [`PastLevels::proven_within`].
     contour_sums: Vec<f64>,
+    /// Whether the carried belief is at most 1 on every cell (where [`PastLevels::proof_bound`]
+    /// needs no group level).
+    past_at_most_one: bool,
 }
 
 /// How many of the carried belief's highest cells witness a group's agreement with it.
@@ -86,6 +89,7 @@ impl<'a> PastLevels<'a> {
             cells: tracker.cell_levels(usable),
             past,
             peaks: peak_cells(&cell_max),
+            past_at_most_one: cell_max.iter().all(|&c| c <= 1.0),
             cell_max,
             memo: HashMap::new(),
             contour_sums: (usable.iter())
@@ -118,38 +122,40 @@ impl PastLevels<'_> {
 
 impl PastLevels<'_> {
     /// Whether the level of a Bayesian `group` of one or two features with the past is proven
-    /// within `threshold` without computing it (`false`: not proven either way). The level is
-    /// the group's own plus −ln of its agreement with the past, Σ_t p(t)·max_t c / Σ_t p(t)
-    /// over the group's state tuples t; a single cell k of tuple t witnesses it at least
-    /// p(t)·c(k) / Π_i Σ_s contour_i(s) (every tuple's product is one term of the product of
-    /// the members' sums). The witnesses are the carried belief's highest cells; the sums stay
-    /// far from underflow, so the level computed is that of the tuple sums, and the margin
-    /// covers their rounding. The selection's graph asks this of every pair.
+    /// within `threshold` without computing it (`false`: not proven either way): its
+    /// [`PastLevels::proof_bound`], with a margin that covers the rounding of the tuple sums.
+    /// The selection's graph asks this of every pair.
     fn proven_within(&mut self, group: GroupMask, threshold: ConflictLevel) -> bool {
+        self.proof_bound(group)
+            .is_some_and(|bound| threshold.admits(bound + 1e-9 * (1.0 + bound)))
+    }
+
+    /// An upper bound of the level of a Bayesian `group` of one or two features with the past,
+    /// from the carried belief's highest cells, without the group's own level (`None` when
+    /// there is none to give). Over the group's state tuples t, with p(t) the product of the
+    /// members' scaled contours, P = Σ_t p(t), A = Σ_t p(t)·max_t c and λ the sum of the
+    /// members' ln(scale), the level is max(0, −ln P − λ) + max(0, ln P − ln A) (one feature:
+    /// the second term alone). A single cell k of tuple t witnesses A ≥ W = c(k)·p(t), and
+    /// P ≤ S = Π_i Σ_s contour_i(s) (every tuple's product is one term of it), so the second
+    /// term is at most max(0, ln S − ln W). With c ≤ 1, A ≤ P, and when the first term is
+    /// positive the level is −ln A − λ ≤ −ln W − λ. Where the carried belief exceeds 1, the
+    /// group's own level stands in for the first term. The sums stay far from underflow
+    /// (W ≥ 1e-150), so the level computed is that of the tuple sums.
+    fn proof_bound(&mut self, group: GroupMask) -> Option<f64> {
         let tracker = self.cells.tracker;
         if tracker.settings.constructor != Constructor::Bayesian || group.count_ones() > 2 {
-            return false;
-        }
-        let own = if group.count_ones() == 2 {
-            self.cells.group_level(group)
-        } else {
-            0.0
-        };
-        if !own.is_finite() {
-            return false;
+            return None;
         }
         let mut witness = 0.0f64;
         let mut sums = 1.0;
+        let mut log_scale = 0.0;
         for i in members(group) {
-            if self.cells.usable[i].is_none() {
-                return false;
-            }
+            let usable = self.cells.usable[i].as_ref()?;
             sums *= self.contour_sums[i];
+            log_scale += usable.scale.ln();
         }
         for &k in &self.peaks {
-            let Some(&(mut p)) = self.cell_max.get(k) else {
-                return false;
-            };
+            let mut p = *self.cell_max.get(k)?;
             for i in members(group) {
                 let feature = self.cells.usable[i].as_ref().map(|u| &u.contour);
                 let state = tracker.to_cells[i].assignment()[k];
@@ -158,10 +164,22 @@ impl PastLevels<'_> {
             witness = witness.max(p);
         }
         if !(witness >= 1e-150 && sums.is_finite()) {
-            return false;
+            return None;
         }
-        let bound = own - (witness / sums).ln();
-        threshold.admits(bound + 1e-9 * (1.0 + bound))
+        let beside = (sums / witness).ln().max(0.0);
+        if group.count_ones() == 1 {
+            return Some(beside);
+        }
+        let first = if self.past_at_most_one {
+            -witness.ln() - log_scale
+        } else {
+            let own = self.cells.group_level(group);
+            if !own.is_finite() {
+                return None;
+            }
+            own + beside
+        };
+        Some(first.max(beside))
     }
 
     /// Σ_F m(F)·max_F c for the combination m of `group` on the cells; `None` when the group
@@ -197,13 +215,16 @@ impl GroupLevels for PastLevels<'_> {
             return self.cells.group_level(group);
         }
         let features = group & !(1 << self.past);
+        // The past's level first: a large group's agreement grows its tuples, whose sum then
+        // gives its own level (bit-identical to the direct sum, which would walk the cells again).
+        let past = self.past_level(features);
         let own = if features.count_ones() >= 2 {
             self.cells.group_level(features)
         } else {
             0.0
         };
         if own.is_finite() {
-            own + self.past_level(features)
+            own + past
         } else {
             f64::INFINITY
         }

@@ -213,3 +213,54 @@ fn a_proven_group_is_within_the_threshold_and_the_choice_is_unchanged() {
     }
     assert!(proven > 100, "{proven}");
 }
+
+#[test]
+fn the_proof_bound_is_never_below_the_level_it_bounds() {
+    use super::PastLevels;
+    use crate::track::GroupLevels;
+    use rand::{Rng, SeedableRng};
+    let tracker = tiny_tracker(Constructor::Bayesian);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+    let (mut bounded, mut tight, mut above_one) = (0, 0, 0);
+    for round in 0..2000 {
+        // Unnormalised likelihoods (scales above and below 1), impossible states now and then,
+        // and now and then a carried belief above 1 somewhere (the own level's path).
+        let scale = [1e-3, 0.5, 1.0, 40.0][round % 4];
+        let mut draw = |n: usize| -> Option<Vec<f64>> {
+            Some(
+                (0..n)
+                    .map(|_| scale * rng.random_range(-0.2f64..1.0).max(0.0).powi(3))
+                    .collect(),
+            )
+        };
+        let lik = vec![draw(2), draw(3), draw(2)];
+        let top = if round % 5 == 0 { 1.5 } else { 1.0 };
+        let carried: Vec<f64> = (0..6).map(|_| top * rng.random::<f64>().powi(2)).collect();
+        let Ok((usable, _)) = tracker.measure(&lik) else {
+            continue;
+        };
+        let mut cell_max = vec![0.0f64; tracker.cell_count()];
+        for (&u, &c) in tracker.cell_of.iter().zip(&carried) {
+            cell_max[u] = cell_max[u].max(c);
+        }
+        above_one += cell_max.iter().any(|&c| c > 1.0) as usize;
+        let mut levels = PastLevels::new(&tracker, &usable, 3, cell_max);
+        for group in [1u64, 2, 4, 3, 5, 6] {
+            let Some(bound) = levels.proof_bound(group) else {
+                continue;
+            };
+            let exact = levels.group_level(group | 1 << 3);
+            assert!(
+                exact <= bound + 1e-12 * (1.0 + bound),
+                "round {round}, group {group:b}: {exact} above {bound}"
+            );
+            bounded += 1;
+            tight += (bound - exact < 1e-9 * (1.0 + exact)) as usize;
+        }
+    }
+    // Bounds were given, some of them equal to the level, and the own level's path was taken.
+    assert!(
+        bounded > 3000 && tight > 100 && above_one > 100,
+        "{bounded} {tight} {above_one}"
+    );
+}

@@ -27,7 +27,8 @@ pub(super) struct TupleStack {
     chain: Vec<Tuples>,
     /// Popped tuples whose buffers the next ones reuse.
     spare: Vec<Tuples>,
-    /// Tuple numbers by (parent tuple, state) while a group is numbered (`u32::MAX`: none yet).
+    /// Tuple numbers by (parent tuple, state) while a group is numbered (`u32::MAX`: none yet;
+    /// all of it between groups).
     remap: Vec<u32>,
     /// Parent tuple and state of each new tuple, in order of first occurrence.
     firsts: Vec<(u32, u32)>,
@@ -257,8 +258,11 @@ impl TupleStack {
         let parent_count = parent.map_or(1, |t| t.product.len());
         // The sum of ln(scale) in member order, as `members(..).map(ln).sum()` adds it.
         next.log_scale = parent.map_or(0.0, |t| t.log_scale) + feature.scale.ln();
-        self.remap.clear();
-        self.remap.resize(parent_count * n, u32::MAX);
+        // Every slot is `u32::MAX` between calls (the ones used are reset below): only a larger
+        // table is filled, not the whole of it each time.
+        if self.remap.len() < parent_count * n {
+            self.remap.resize(parent_count * n, u32::MAX);
+        }
         next.id.resize(states.len(), 0);
         // Number the tuples in one tight pass, then take the products of the new ones (in the
         // same order, so the same bits).
@@ -292,6 +296,9 @@ impl TupleStack {
             };
             next.product.push(before * c);
             next.positive.push(all_positive && c > 0.0);
+        }
+        for &(p, su) in self.firsts.iter() {
+            self.remap[p as usize * n + su as usize] = u32::MAX;
         }
         next
     }

@@ -151,6 +151,19 @@ impl PoseBuckets {
                     .fold(f64::NEG_INFINITY, |a, &c| a.max(c))
             })
             .collect();
+        // The buckets that can raise a max from 0, largest value first: each pose walks them in
+        // that order, so it stops at the first one whose value is no larger than its max so far
+        // (every later one is no larger either), and at the first it reaches whole.
+        let mut order: Vec<Ranked> = (top.iter().enumerate())
+            .filter(|(_, &t)| t > 0.0)
+            .map(|(b, &t)| Ranked {
+                top: t,
+                column: (b % self.size[0]) as u32,
+                row: (b / self.size[0]) as u32,
+                bucket: b as u32,
+            })
+            .collect();
+        order.sort_unstable_by(|a, b| b.top.total_cmp(&a.top));
         let (xs, ys) = (&self.xs, &self.ys);
         let exotic = !(r2.is_finite())
             || self
@@ -177,23 +190,27 @@ impl PoseBuckets {
                 };
                 let ((i0, i1), (j0, j1)) = (span(0), span(1));
                 let mut best = 0.0f64;
-                for j in j0..=j1 {
-                    let row = j * self.size[0];
-                    let buckets = top.iter().enumerate().take(row + i1 + 1).skip(row + i0);
-                    for (b, &largest) in buckets {
-                        // A bucket whose largest value is no larger cannot change the max.
-                        if largest <= best {
-                            continue;
+                for ranked in &order {
+                    // This bucket and every later one are no larger: none can change the max.
+                    if ranked.top <= best {
+                        break;
+                    }
+                    let (i, j) = (ranked.column as usize, ranked.row as usize);
+                    if i < i0 || i > i1 || j < j0 || j > j1 {
+                        continue;
+                    }
+                    let b = ranked.bucket as usize;
+                    match reached(&self.boxes[b], target, r2) {
+                        Reached::All => {
+                            best = ranked.top;
+                            break;
                         }
-                        match reached(&self.boxes[b], target, r2) {
-                            Reached::All => best = largest,
-                            Reached::None => {}
-                            Reached::Some => {
-                                for k in self.start[b]..self.start[b + 1] {
-                                    let q = [xs[k], ys[k]];
-                                    if within(&q, target) {
-                                        best = best.max(values[k]);
-                                    }
+                        Reached::None => {}
+                        Reached::Some => {
+                            for k in self.start[b]..self.start[b + 1] {
+                                let q = [xs[k], ys[k]];
+                                if within(&q, target) {
+                                    best = best.max(values[k]);
                                 }
                             }
                         }
@@ -203,6 +220,15 @@ impl PoseBuckets {
             })
             .collect()
     }
+}
+
+/// A bucket in the dilation's walk: its largest value and place on the grid.
+#[derive(Clone, Copy, Debug)]
+struct Ranked {
+    top: f64,
+    column: u32,
+    row: u32,
+    bucket: u32,
 }
 
 /// How many of a bucket's members lie within the disc.
@@ -344,17 +370,28 @@ mod tests {
         clumped.extend([[30.0, 30.0], [-30.0, 5.0]]);
         for poses in [mesh, scattered, clumped, vec![[1.0, 2.0]]] {
             let buckets = PoseBuckets::new(&poses);
-            for _ in 0..20 {
-                let contour: Vec<f64> = poses.iter().map(|_| rng.random::<f64>().powi(4)).collect();
+            for round in 0..60 {
+                // Spread values; a peak that falls to 0 far away (as a carried contour does);
+                // few distinct values (ties), with a negative value and a NaN now and then.
+                let centre = [rng.random_range(-10.0..10.0), rng.random_range(35.0..60.0)];
+                let contour: Vec<f64> = (poses.iter())
+                    .map(|p| match round % 3 {
+                        0 => rng.random::<f64>().powi(4),
+                        1 => (-((p[0] - centre[0]).powi(2) + (p[1] - centre[1]).powi(2)) * 20.0)
+                            .exp(),
+                        _ => [0.0, 0.5, 1.0, -0.5, f64::NAN][rng.random_range(0..5)],
+                    })
+                    .collect();
                 // Reaches from none to beyond the poses' extent, exactly on mesh distances too.
                 let reach = [0.0, 1.0, 2.0, 0.37, 4.0, 100.0, -1.5][rng.random_range(0..7)];
                 let shift = [
                     rng.random_range(-3.0..3.0),
                     [0.0, 1.0][rng.random_range(0..2)],
                 ];
+                let bits = |v: Vec<f64>| v.into_iter().map(f64::to_bits).collect::<Vec<_>>();
                 assert_eq!(
-                    buckets.dilate(&contour, reach, shift),
-                    direct(&poses, &contour, reach, shift),
+                    bits(buckets.dilate(&contour, reach, shift)),
+                    bits(direct(&poses, &contour, reach, shift)),
                     "reach {reach}, shift {shift:?}"
                 );
             }
