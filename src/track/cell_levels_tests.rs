@@ -268,3 +268,56 @@ fn splitting_the_bench_frame_scaled_down_equals_the_exhaustive_selection() {
         "{split} selections with more than 5 alternatives"
     );
 }
+
+/// Counts the group levels the selection asks for.
+struct Counting<'a> {
+    inner: CellLevels<'a>,
+    calls: usize,
+}
+
+impl GroupLevels for Counting<'_> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        self.inner.pair_level(i, j)
+    }
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        self.calls += 1;
+        self.inner.group_level(group)
+    }
+    fn fallback_feature(&self) -> Option<usize> {
+        self.inner.fallback_feature()
+    }
+    fn cheap_pairs(&self) -> bool {
+        self.inner.cheap_pairs()
+    }
+    fn floors_without_one(&mut self, group: GroupMask) -> Option<Vec<f64>> {
+        self.inner.floors_without_one(group)
+    }
+}
+
+#[test]
+fn splitting_the_bench_frame_looks_ahead_instead_of_listing_the_eligible_groups() {
+    // The bench's frame with 24 features on a 60 × 60 mesh: feature 0 reports a pose 8 mm
+    // away, so the maximal eligible groups holding it are many, each with many eligible
+    // groups inside it that the search never computes.
+    let mut rng = ChaCha8Rng::seed_from_u64(2026);
+    let (tracker, [clean, faulty]) = bench_shaped(&mut rng, 24, 60, &[0, 12]);
+    let (usable, _) = tracker.measure(&clean).unwrap();
+    let all = present_mask(&usable);
+    let level = tracker.raw_level(all, &usable);
+    let (usable, _) = tracker.measure(&faulty).unwrap();
+    let threshold = ConflictLevel::from_value(1.05 * level);
+    let mut levels = Counting {
+        inner: tracker.cell_levels(&usable),
+        calls: 0,
+    };
+    let policy = SelectionPolicy::Splitting { min_size: 2 };
+    let s = select_group(&mut levels, 24, all, policy, threshold);
+    let alternatives = s.alternatives.len();
+    println!("{alternatives} alternatives, {} levels", levels.calls);
+    assert!(alternatives > 50, "{alternatives} alternatives");
+    assert!(
+        levels.calls < 6 * alternatives,
+        "{} levels for {alternatives} alternatives",
+        levels.calls
+    );
+}

@@ -1,13 +1,14 @@
 //! The splitting policy's search: the maximal eligible groups of at least `min_size` features.
 //!
-//! Eligible groups are closed under taking subsets (Theorem 4.3: a group's level only grows as
-//! features are added), so the search walks the cliques depth first and, below each group,
-//! (1) keeps only the candidates whose addition stays within the bound (a candidate beyond it
-//! rules out every larger group holding it, uncomputed), (2) skips the branch when the group and
-//! every kept candidate lie inside an alternative already found, and (3) looks ahead: when the
-//! group with every kept candidate is itself an eligible clique, it is the one maximal group of
-//! the branch, and nothing below it is computed. Levels are the memoised ones of the other
-//! policies, so each group's level is the same bits whatever the walk computed before it.
+//! The search walks the cliques depth first in lexicographic order, and rules a branch out
+//! before computing anything below it when the group is beyond the bound (Theorem 4.3: a
+//! group's level only grows as features are added, so every larger group is too) or when the
+//! group with every candidate lies inside a group already found. It looks ahead: when the group
+//! with every candidate is an eligible clique, that is the branch's one maximal group and
+//! nothing below it is computed; when not, the walk reuses the tuples grown for it along the
+//! leftmost branch. Groups are recorded after their branch, only when nothing larger in it is
+//! eligible, so the list each branch is checked against stays short. Levels are the memoised
+//! ones of the other policies: each group's level is the same bits whatever came before it.
 
 use super::{lex_cmp, maximal_cliques, members, sort_alternatives, GroupLevels, GroupMask, Search};
 
@@ -47,53 +48,51 @@ impl<L: GroupLevels> Search<'_, L> {
     }
 
     /// Records in `found` the eligible groups of at least `m` features that extend `group` (a
-    /// clique, not beyond the bound) by `candidates` (each adjacent to every member, above its
-    /// highest) and that no group found already holds; with those, possibly some groups inside
-    /// others (the caller keeps the maximal ones).
+    /// clique) by `candidates` (each adjacent to every member, above its highest) and that no
+    /// group found already holds, each only when no larger group of its branch is eligible
+    /// (some may still lie inside others: the caller keeps the maximal ones). Returns whether
+    /// `group` or a larger group of the branch is eligible and recorded.
     fn split_below(
         &mut self,
         group: GroupMask,
         candidates: GroupMask,
         m: u32,
         found: &mut Vec<GroupMask>,
-    ) {
+    ) -> bool {
         let n = group.count_ones();
-        let within = |found: &[GroupMask], reach: GroupMask| found.iter().any(|&f| reach & !f == 0);
-        if n + candidates.count_ones() < m || within(found, group | candidates) {
-            return;
+        let reach = group | candidates;
+        if n + candidates.count_ones() < m || found.iter().any(|&f| reach & !f == 0) {
+            return false;
         }
-        let bound = self.threshold.value();
         let k = self.level(group);
-        if Self::beyond(k, bound) {
-            return;
+        if Self::beyond(k, self.threshold.value()) {
+            return false;
         }
-        if n >= m && self.threshold.admits(k) {
+        let eligible = n >= m && self.threshold.admits(k);
+        let mut covered = false;
+        if candidates != 0 {
+            // Every group below lies inside `reach`: when it is an eligible clique, it is the
+            // branch's one maximal group. Its level grows the tuples of the leftmost branch,
+            // which the walk below reuses when it is not.
+            let clique =
+                n >= 1 && members(candidates).all(|c| candidates & !(self.adj[c] | 1 << c) == 0);
+            if clique && self.threshold.admits(self.level(reach)) {
+                found.push(reach);
+                covered = true;
+            } else {
+                let mut rest = candidates;
+                while rest != 0 {
+                    let j = rest.trailing_zeros() as usize;
+                    rest &= rest - 1;
+                    covered |= self.split_below(group | 1 << j, rest & self.adj[j], m, found);
+                }
+            }
+        }
+        // Recorded after its branch, and only when nothing larger in it was: the list the
+        // branches below are checked against stays short.
+        if eligible && !covered {
             found.push(group);
         }
-        // Pairs are edges of the conflict graph: within the threshold already.
-        let kept = if n < 2 {
-            candidates
-        } else {
-            members(candidates)
-                .filter(|&c| !Self::beyond(self.level(group | 1 << c), bound))
-                .fold(0, |kept, c| kept | 1 << c)
-        };
-        let reach = group | kept;
-        if kept == 0 || reach.count_ones() < m || within(found, reach) {
-            return;
-        }
-        // Every group below lies inside `reach`: when it is an eligible clique, it is the
-        // branch's one maximal group.
-        let clique = members(kept).all(|c| kept & !(self.adj[c] | 1 << c) == 0);
-        if clique && self.threshold.admits(self.level(reach)) {
-            found.push(reach);
-            return;
-        }
-        let mut rest = kept;
-        while rest != 0 {
-            let j = rest.trailing_zeros() as usize;
-            rest &= rest - 1;
-            self.split_below(group | 1 << j, rest & self.adj[j], m, found);
-        }
+        eligible || covered
     }
 }
