@@ -72,10 +72,11 @@ impl<L: GroupLevels> Search<'_, L> {
         let mut covered = false;
         if candidates != 0 {
             // Every group below lies inside `reach`: when it is an eligible clique, it is the
-            // branch's one maximal group. Its level grows the tuples of the leftmost branch,
-            // which the walk below reuses when it is not.
+            // branch's one maximal group. From three members on, its level grows the tuples of
+            // the leftmost branch, which the walk below reuses when it is not (below three, it
+            // would be computed afresh: 12 % more instructions on the 8-feature faulty frame).
             let clique =
-                n >= 1 && members(candidates).all(|c| candidates & !(self.adj[c] | 1 << c) == 0);
+                n >= 3 && members(candidates).all(|c| candidates & !(self.adj[c] | 1 << c) == 0);
             if clique && self.threshold.admits(self.level(reach)) {
                 found.push(reach);
                 covered = true;
