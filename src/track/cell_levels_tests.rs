@@ -180,3 +180,144 @@ fn floors_without_one_feature_never_exceed_the_levels_they_bound() {
         .floors_without_one(31)
         .is_none());
 }
+
+/// The bench's 10,000 × 32 frame scaled down: `n` linear features of 3 states with directions
+/// spread over a half turn on the `side` × `side` mesh of the 19 mm square, at a random pose;
+/// the features in `corrupt` report a pose 8 mm away in x. The tracker, and the frame's
+/// likelihoods clean and corrupted.
+fn bench_shaped(
+    rng: &mut ChaCha8Rng,
+    n: usize,
+    side: usize,
+    corrupt: &[usize],
+) -> (Tracker, [Vec<Option<Vec<f64>>>; 2]) {
+    let step = 19.0 / (side - 1) as f64;
+    let poses: Vec<[f64; 2]> = (0..side * side)
+        .map(|q| [(q % side) as f64 * step, (q / side) as f64 * step])
+        .collect();
+    let mut features = Vec::new();
+    let mut specs = Vec::new();
+    for i in 0..n {
+        let a = (i as f64 * 180.0 / n as f64).to_radians();
+        let coef = [a.cos(), a.sin()];
+        let values: Vec<f64> = poses
+            .iter()
+            .map(|p| coef[0] * p[0] + coef[1] * p[1])
+            .collect();
+        let lo = values.iter().copied().fold(f64::INFINITY, f64::min) - 0.5;
+        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 0.5;
+        let w = (hi - lo) / 3.0;
+        let assignment: Vec<usize> = values
+            .iter()
+            .map(|v| (((v - lo) / w).floor() as usize).min(2))
+            .collect();
+        features.push(TrackedFeature {
+            refining: Refining::from_assignment(3, &assignment).unwrap(),
+            validation_error: None,
+        });
+        specs.push((coef, lo, w));
+    }
+    let model = TrackerModel::new(poses, features).unwrap();
+    let tracker = Tracker::new(model, TrackSettings::default().check().unwrap()).unwrap();
+    let p = [rng.random_range(0.0..19.0), rng.random_range(0.0..19.0)];
+    let shifted = [if p[0] < 11.0 { p[0] + 8.0 } else { p[0] - 8.0 }, p[1]];
+    let frame = |faulty: &[usize]| {
+        (specs.iter().enumerate())
+            .map(|(i, &(coef, lo, w))| {
+                let q = if faulty.contains(&i) { shifted } else { p };
+                let v = coef[0] * q[0] + coef[1] * q[1];
+                Some(
+                    (0..3)
+                        .map(|s| (-(v - (lo + (s as f64 + 0.5) * w)).powi(2) / (0.5 * w * w)).exp())
+                        .collect(),
+                )
+            })
+            .collect()
+    };
+    (tracker, [frame(&[]), frame(corrupt)])
+}
+
+#[test]
+fn splitting_the_bench_frame_scaled_down_equals_the_exhaustive_selection() {
+    let mut rng = ChaCha8Rng::seed_from_u64(34);
+    let mut split = 0;
+    for (n, side, corrupt) in [(14, 30, [0, 7]), (12, 40, [0, 6]), (13, 25, [0, 3])] {
+        for _frame in 0..3 {
+            let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
+            let (usable, _) = tracker.measure(&clean).unwrap();
+            let all = present_mask(&usable);
+            let level = tracker.raw_level(all, &usable);
+            let (usable, _) = tracker.measure(&faulty).unwrap();
+            for factor in [1.05, 1.5, 3.0] {
+                let threshold = ConflictLevel::from_value(factor * level);
+                for min_size in [2, 4] {
+                    let policy = SelectionPolicy::Splitting { min_size };
+                    let mut levels = tracker.cell_levels(&usable);
+                    let pruned = select_group(&mut levels, n, all, policy, threshold);
+                    let mut levels = tracker.cell_levels(&usable);
+                    let every = select_group_exhaustive(&mut levels, n, all, policy, threshold);
+                    assert_eq!(pruned, every, "n {n} side {side} ×{factor} min {min_size}");
+                    split += usize::from(pruned.alternatives.len() > 5);
+                }
+            }
+        }
+    }
+    // Most frames split into many alternatives, as the bench's does.
+    assert!(
+        split > 20,
+        "{split} selections with more than 5 alternatives"
+    );
+}
+
+/// Counts the group levels the selection asks for.
+struct Counting<'a> {
+    inner: CellLevels<'a>,
+    calls: usize,
+}
+
+impl GroupLevels for Counting<'_> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        self.inner.pair_level(i, j)
+    }
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        self.calls += 1;
+        self.inner.group_level(group)
+    }
+    fn fallback_feature(&self) -> Option<usize> {
+        self.inner.fallback_feature()
+    }
+    fn cheap_pairs(&self) -> bool {
+        self.inner.cheap_pairs()
+    }
+    fn floors_without_one(&mut self, group: GroupMask) -> Option<Vec<f64>> {
+        self.inner.floors_without_one(group)
+    }
+}
+
+#[test]
+fn splitting_the_bench_frame_looks_ahead_instead_of_listing_the_eligible_groups() {
+    // The bench's frame with 24 features on a 60 × 60 mesh: feature 0 reports a pose 8 mm
+    // away, so the maximal eligible groups holding it are many, each with many eligible
+    // groups inside it that the search never computes.
+    let mut rng = ChaCha8Rng::seed_from_u64(2026);
+    let (tracker, [clean, faulty]) = bench_shaped(&mut rng, 24, 60, &[0, 12]);
+    let (usable, _) = tracker.measure(&clean).unwrap();
+    let all = present_mask(&usable);
+    let level = tracker.raw_level(all, &usable);
+    let (usable, _) = tracker.measure(&faulty).unwrap();
+    let threshold = ConflictLevel::from_value(1.05 * level);
+    let mut levels = Counting {
+        inner: tracker.cell_levels(&usable),
+        calls: 0,
+    };
+    let policy = SelectionPolicy::Splitting { min_size: 2 };
+    let s = select_group(&mut levels, 24, all, policy, threshold);
+    let alternatives = s.alternatives.len();
+    println!("{alternatives} alternatives, {} levels", levels.calls);
+    assert!(alternatives > 50, "{alternatives} alternatives");
+    assert!(
+        levels.calls < 6 * alternatives,
+        "{} levels for {alternatives} alternatives",
+        levels.calls
+    );
+}

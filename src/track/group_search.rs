@@ -21,6 +21,8 @@ use crate::evidence::ConflictLevel;
 
 #[path = "group_exhaustive.rs"]
 mod exhaustive;
+#[path = "group_split.rs"]
+mod split;
 #[cfg(test)]
 use exhaustive::all_cliques;
 use exhaustive::every_clique;
@@ -542,46 +544,6 @@ impl<L: GroupLevels> Search<'_, L> {
             true
         });
         chosen
-    }
-
-    /// The splitting policy's alternatives: the maximal eligible groups of at least `min_size`
-    /// features, by decreasing size, then increasing level, then feature list.
-    fn maximal_eligible(&mut self, usable: GroupMask, min_size: usize) -> Vec<(f64, GroupMask)> {
-        let m = min_size.max(1) as u32;
-        let bound = self.threshold.value();
-        self.cut = bound;
-        // An eligible maximal clique is a maximal eligible group; below the others, search.
-        let mut found: Vec<GroupMask> = Vec::new();
-        for g in maximal_cliques(usable, &self.adj) {
-            if g.count_ones() >= m && self.threshold.admits(self.level(g)) {
-                found.push(g);
-            }
-        }
-        self.walk(0, usable, &mut |s, g, candidates| {
-            let n = g.count_ones();
-            let reach = g | candidates;
-            if n + candidates.count_ones() < m || found.iter().any(|&f| reach & f == reach) {
-                return false;
-            }
-            let k = s.level(g);
-            if Self::beyond(k, bound) {
-                return false;
-            }
-            if n >= m && s.threshold.admits(k) {
-                found.push(g);
-            }
-            true
-        });
-        // Largest first, so that a group inside an accepted one is seen after it.
-        found.sort_by(|&a, &b| b.count_ones().cmp(&a.count_ones()).then(lex_cmp(b, a)));
-        let mut alternatives: Vec<(f64, GroupMask)> = Vec::new();
-        for g in found {
-            if !alternatives.iter().any(|&(_, a)| g & a == g) {
-                alternatives.push((self.level(g), g));
-            }
-        }
-        sort_alternatives(&mut alternatives);
-        alternatives
     }
 }
 
