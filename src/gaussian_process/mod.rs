@@ -8,7 +8,7 @@ mod cholesky;
 mod inverse;
 mod likelihood;
 mod optimiser;
-mod simd;
+pub(crate) mod simd;
 
 pub use cholesky::cholesky;
 pub use inverse::upper_inverse;
