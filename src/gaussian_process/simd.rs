@@ -1,6 +1,6 @@
-//! Runs the tiled loops of the Cholesky factor and the inverse (and the particle filter's
-//! per-feature exponents) with 256-bit vectors where the
-//! processor has them (AVX: four multiplies or subtractions per instruction instead of two).
+//! Runs the tiled loops of the Cholesky factor and the inverse, and the particle filter's
+//! per-feature exponents, with 256-bit vectors where the processor has them (AVX: four
+//! multiplies or subtractions per instruction instead of two).
 //! Only the width changes: each lane still rounds every multiply and every subtraction on its
 //! own (no fused multiply-add is enabled), so the bits are those of the plain build.
 //!
