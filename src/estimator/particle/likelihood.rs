@@ -114,12 +114,12 @@ impl FrameLikelihood {
                 };
                 let exponents = &mut self.exponents[..m];
                 exponents_and_floors(&term, &self.mapped[i * m..(i + 1) * m], exponents, logs);
-                // Branch-free listing of the terms above their floor (`!(x < below)`, as a NaN
-                // exponent takes the formula's path).
+                // Branch-free listing of the terms above their floor (not below it: a NaN
+                // exponent takes the formula's path, as in `exponents_and_floors_in`).
                 let mut count = 0;
                 for (p, &x) in exponents.iter().enumerate() {
                     self.above[count] = p as u32;
-                    count += usize::from(!(x < below));
+                    count += usize::from(x.partial_cmp(&below) != Some(std::cmp::Ordering::Less));
                 }
                 for &p in &self.above[..count] {
                     let p = p as usize;
