@@ -1,6 +1,6 @@
 //! Runs hot loops (the Gaussian process's Cholesky factor and inverse, the HMM's general
-//! recursions) with 256-bit vectors where the processor has them (AVX: four multiplies or
-//! additions per instruction instead of two).
+//! recursions, the particle filter's per-feature exponents) with 256-bit vectors where the
+//! processor has them (AVX: four multiplies or additions per instruction instead of two).
 //! Only the width changes: each lane still rounds every multiply and every addition on its
 //! own (no fused multiply-add is enabled), so the bits are those of the plain build.
 //!
