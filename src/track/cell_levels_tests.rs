@@ -12,6 +12,31 @@ use rand_chacha::ChaCha8Rng;
 /// A linear feature: its direction, the lower end of its bins, their width, its state count.
 type Spec = ([f64; 2], f64, f64, usize);
 
+/// A feature that cuts the projection of the pose on `coef` into `states` equal bins (half a
+/// unit of margin at each end): the feature, its lowest value and its bin width.
+fn projection_feature(
+    poses: &[[f64; 2]],
+    coef: [f64; 2],
+    states: usize,
+) -> (TrackedFeature, f64, f64) {
+    let values: Vec<f64> = poses
+        .iter()
+        .map(|p| coef[0] * p[0] + coef[1] * p[1])
+        .collect();
+    let lo = values.iter().copied().fold(f64::INFINITY, f64::min) - 0.5;
+    let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 0.5;
+    let w = (hi - lo) / states as f64;
+    let assignment: Vec<usize> = values
+        .iter()
+        .map(|v| (((v - lo) / w).floor() as usize).min(states - 1))
+        .collect();
+    let feature = TrackedFeature {
+        refining: Refining::from_assignment(states, &assignment).unwrap(),
+        validation_error: None,
+    };
+    (feature, lo, w)
+}
+
 /// A tracker over the 12 × 12 mesh of the 11 mm square with `n` linear features of random
 /// direction and 2–4 states, and the features' directions and bins.
 fn random_tracker(
@@ -28,21 +53,8 @@ fn random_tracker(
         let a: f64 = rng.random_range(0.0..std::f64::consts::PI);
         let coef = [a.cos(), a.sin()];
         let states = rng.random_range(2..=4);
-        let values: Vec<f64> = poses
-            .iter()
-            .map(|p| coef[0] * p[0] + coef[1] * p[1])
-            .collect();
-        let lo = values.iter().copied().fold(f64::INFINITY, f64::min) - 0.5;
-        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 0.5;
-        let w = (hi - lo) / states as f64;
-        let assignment: Vec<usize> = values
-            .iter()
-            .map(|v| (((v - lo) / w).floor() as usize).min(states - 1))
-            .collect();
-        features.push(TrackedFeature {
-            refining: Refining::from_assignment(states, &assignment).unwrap(),
-            validation_error: None,
-        });
+        let (feature, lo, w) = projection_feature(&poses, coef, states);
+        features.push(feature);
         specs.push((coef, lo, w, states));
     }
     let model = TrackerModel::new(poses, features).unwrap();
@@ -200,21 +212,8 @@ fn bench_shaped(
     for i in 0..n {
         let a = (i as f64 * 180.0 / n as f64).to_radians();
         let coef = [a.cos(), a.sin()];
-        let values: Vec<f64> = poses
-            .iter()
-            .map(|p| coef[0] * p[0] + coef[1] * p[1])
-            .collect();
-        let lo = values.iter().copied().fold(f64::INFINITY, f64::min) - 0.5;
-        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 0.5;
-        let w = (hi - lo) / 3.0;
-        let assignment: Vec<usize> = values
-            .iter()
-            .map(|v| (((v - lo) / w).floor() as usize).min(2))
-            .collect();
-        features.push(TrackedFeature {
-            refining: Refining::from_assignment(3, &assignment).unwrap(),
-            validation_error: None,
-        });
+        let (feature, lo, w) = projection_feature(&poses, coef, 3);
+        features.push(feature);
         specs.push((coef, lo, w));
     }
     let model = TrackerModel::new(poses, features).unwrap();
