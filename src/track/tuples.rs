@@ -296,8 +296,6 @@ impl TupleStack {
             };
             next.product.push(before * c);
             next.positive.push(all_positive && c > 0.0);
-        }
-        for &(p, su) in self.firsts.iter() {
             self.remap[p as usize * n + su as usize] = u32::MAX;
         }
         next
