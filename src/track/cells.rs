@@ -3,6 +3,7 @@
 //! once per model by [`Tracker::new`](super::Tracker::new); the per-frame work runs on them.
 
 use std::collections::HashMap;
+use std::sync::OnceLock;
 
 use super::tracker_model::TrackerModel;
 use super::TrackError;
@@ -33,7 +34,14 @@ pub(super) struct PairTuples {
     tuples: Vec<(u32, u32)>,
     /// Per feature, its states occurring on the cells in order of first occurrence.
     states: Vec<Vec<u32>>,
+    /// Per pair (indexed as `start`), each cell's tuple number, built when first asked for
+    /// (empty when the model is too large for them: [`MAX_CELL_TUPLES`]).
+    cell_tuples: Vec<OnceLock<Vec<u16>>>,
 }
+
+/// Most cell tuple numbers [`PairTuples::cell_tuples`] keeps over every pair (2 MB): beyond it
+/// the per-frame work indexes the state pairs instead.
+const MAX_CELL_TUPLES: usize = 1 << 20;
 
 impl PairTuples {
     fn new(to_cells: &[Refining]) -> Self {
@@ -71,12 +79,41 @@ impl PairTuples {
                     .collect()
             })
             .collect();
+        let cells = to_cells.first().map_or(0, |r| r.assignment().len());
+        // Tuple numbers fit in 16 bits when the cells do (each tuple occurs on a cell).
+        let numbered = cells <= usize::from(u16::MAX) && f * f * cells <= MAX_CELL_TUPLES;
+        let cell_tuples = if numbered {
+            (0..f * f).map(|_| OnceLock::new()).collect()
+        } else {
+            Vec::new()
+        };
         PairTuples {
             features: f,
             start,
             tuples,
             states,
+            cell_tuples,
         }
+    }
+
+    /// The number of each cell's tuple of features `i < j` in [`PairTuples::of`]'s list, built
+    /// on first use (a frame then reads one number per cell instead of both states); `None`
+    /// when the model is too large to keep them.
+    pub(super) fn cell_tuples(&self, i: usize, j: usize, to_cells: &[Refining]) -> Option<&[u16]> {
+        let slot = self.cell_tuples.get(i * self.features + j)?;
+        let ids = slot.get_or_init(|| {
+            let nb = to_cells[j].coarse_size();
+            let mut number = vec![0u16; to_cells[i].coarse_size() * nb];
+            for (t, &(x, y)) in self.of(i, j).iter().enumerate() {
+                // At most one tuple per cell, and the cells fit in 16 bits.
+                number[x as usize * nb + y as usize] = t as u16;
+            }
+            (to_cells[i].assignment().iter())
+                .zip(to_cells[j].assignment())
+                .map(|(&x, &y)| number[x * nb + y])
+                .collect()
+        });
+        Some(ids)
     }
 
     /// The states of feature `i` occurring on the cells, in order of first occurrence.

@@ -114,6 +114,11 @@ fn a_feature_or_pair_agrees_with_the_past_as_its_grown_tuples_bit_for_bit() {
             .collect();
         let (usable, _) = tracker.measure(&lik).unwrap();
         let mut stack = crate::track::tuples::TupleStack::default();
+        // A small model numbers each pair's tuples on the cells: its pairs take that path.
+        assert!(tracker
+            .pair_tuples
+            .cell_tuples(0, 2, &tracker.to_cells)
+            .is_some());
         for group in [0b001u64, 0b010, 0b100, 0b011, 0b101, 0b110] {
             let direct =
                 (stack.small_agreement(&tracker, &usable, group, &cell_max)).expect("small tables");
@@ -122,6 +127,31 @@ fn a_feature_or_pair_agrees_with_the_past_as_its_grown_tuples_bit_for_bit() {
                 direct.map(f64::to_bits),
                 grown.map(f64::to_bits),
                 "round {round}, group {group:b}"
+            );
+        }
+    }
+}
+
+#[test]
+fn each_cell_is_numbered_with_its_pairs_tuple() {
+    let tracker = tiny_tracker(Constructor::Bayesian);
+    for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+        let ids = tracker
+            .pair_tuples
+            .cell_tuples(i, j, &tracker.to_cells)
+            .unwrap();
+        let tuples = tracker.pair_tuples.of(i, j);
+        assert_eq!(ids.len(), tracker.cell_count());
+        for (k, &t) in ids.iter().enumerate() {
+            let (x, y) = tuples[usize::from(t)];
+            let states = (
+                tracker.to_cells[i].assignment()[k],
+                tracker.to_cells[j].assignment()[k],
+            );
+            assert_eq!(
+                (x as usize, y as usize),
+                states,
+                "pair ({i}, {j}), cell {k}"
             );
         }
     }

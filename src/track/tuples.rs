@@ -164,13 +164,30 @@ impl TupleStack {
             if size > SMALL_TABLE.max(2 * cell_max.len()) {
                 return None;
             }
+            let tuples = tracker.pair_tuples.of(i, j);
+            if let Some(ids) = tracker.pair_tuples.cell_tuples(i, j, &tracker.to_cells) {
+                // The same maxima and the same sum, by tuple number.
+                top.resize(tuples.len(), 0.0);
+                for (&t, &c) in ids.iter().zip(cell_max) {
+                    let t = &mut top[usize::from(t)];
+                    *t = t.max(c);
+                }
+                for (&(x, y), &m) in tuples.iter().zip(top.iter()) {
+                    let (ca, cb) = (a.contour[x as usize], b.contour[y as usize]);
+                    let p = ca * cb;
+                    agree += p * m;
+                    total += p;
+                    positive |= ca > 0.0 && cb > 0.0;
+                }
+                return Some(agreement_share(agree, total, positive));
+            }
             top.resize(size, 0.0);
             let states_j = tracker.to_cells[j].assignment();
             for ((&x, &y), &c) in states_i.iter().zip(states_j).zip(cell_max) {
                 let t = &mut top[x * nb + y];
                 *t = t.max(c);
             }
-            for &(x, y) in tracker.pair_tuples.of(i, j) {
+            for &(x, y) in tuples {
                 let (ca, cb) = (a.contour[x as usize], b.contour[y as usize]);
                 let p = ca * cb;
                 agree += p * top[x as usize * nb + y as usize];
@@ -258,6 +275,17 @@ impl TupleStack {
         let parent_count = parent.map_or(1, |t| t.product.len());
         // The sum of ln(scale) in member order, as `members(..).map(ln).sum()` adds it.
         next.log_scale = parent.map_or(0.0, |t| t.log_scale) + feature.scale.ln();
+        if let Some(t) = parent.filter(|t| t.product.len() == states.len()) {
+            // Every cell has its own tuple, so the parent numbers cell k as k (by first
+            // occurrence) and so does the group: the products in cell order, no numbering.
+            next.id.extend(0..states.len() as u32);
+            for ((&before, &all_positive), &su) in t.product.iter().zip(&t.positive).zip(states) {
+                let c = feature.contour[su];
+                next.product.push(before * c);
+                next.positive.push(all_positive && c > 0.0);
+            }
+            return next;
+        }
         // Every slot is `u32::MAX` between calls (the ones used are reset below): only a larger
         // table is filled, not the whole of it each time.
         if self.remap.len() < parent_count * n {

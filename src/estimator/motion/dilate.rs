@@ -164,61 +164,112 @@ impl PoseBuckets {
             })
             .collect();
         order.sort_unstable_by(|a, b| b.top.total_cmp(&a.top));
-        let (xs, ys) = (&self.xs, &self.ys);
         let exotic = !(r2.is_finite())
             || self
                 .poses
                 .iter()
                 .any(|p| !(p[0].is_finite() && p[1].is_finite()));
-        self.poses
-            .iter()
-            .map(|p| {
-                let target = [p[0] - shift[0], p[1] - shift[1]];
-                if exotic || !(target[0].is_finite() && target[1].is_finite()) {
-                    // Not finite anywhere: the direct scan.
-                    return (self.poses.iter().zip(contour))
-                        .filter(|(q, _)| within(q, target))
-                        .map(|(_, &c)| c)
-                        .fold(0.0f64, f64::max);
-                }
-                // One bucket beyond the disc's box on each side absorbs any rounding of the
-                // bucket indices.
-                let r = reach.abs();
-                let span = |d: usize| {
-                    let (a, b) = (self.index(d, target[d] - r), self.index(d, target[d] + r));
-                    (a.saturating_sub(1), (b + 1).min(self.size[d] - 1))
+        let direct = |target: [f64; 2]| {
+            (self.poses.iter().zip(contour))
+                .filter(|(q, _)| within(q, target))
+                .map(|(_, &c)| c)
+                .fold(0.0f64, f64::max)
+        };
+        if exotic {
+            // Not finite anywhere: the direct scan.
+            return (self.poses.iter())
+                .map(|p| direct([p[0] - shift[0], p[1] - shift[1]]))
+                .collect();
+        }
+        let r = reach.abs();
+        // One bucket beyond the disc's box on each side absorbs any rounding of the bucket
+        // indices; `lo` and `hi` bound the targets' coordinates along axis `d`.
+        let span = |d: usize, lo: f64, hi: f64| {
+            let (a, b) = (self.index(d, lo - r), self.index(d, hi + r));
+            (a.saturating_sub(1), (b + 1).min(self.size[d] - 1))
+        };
+        let walk = Walk {
+            buckets: self,
+            values: &values,
+            r2,
+        };
+        let mut out = vec![0.0; self.poses.len()];
+        let mut near: Vec<Ranked> = Vec::with_capacity(order.len());
+        for (b, bounds) in self.boxes.iter().enumerate() {
+            let range = self.start[b]..self.start[b + 1];
+            if range.is_empty() {
+                continue;
+            }
+            // The buckets any member's disc can overlap, in the walk's order: its targets lie
+            // within the members' box moved by the shift, and a bucket index only grows with
+            // the coordinate, so each member's own span lies within this one.
+            let ((i0, i1), (j0, j1)) = (
+                span(0, bounds[0] - shift[0], bounds[1] - shift[0]),
+                span(1, bounds[2] - shift[1], bounds[3] - shift[1]),
+            );
+            near.clear();
+            near.extend(order.iter().filter(|o| {
+                let (i, j) = (o.column as usize, o.row as usize);
+                (i0..=i1).contains(&i) && (j0..=j1).contains(&j)
+            }));
+            for k in range {
+                let target = [self.xs[k] - shift[0], self.ys[k] - shift[1]];
+                out[self.members[k] as usize] = if !(target[0].is_finite() && target[1].is_finite())
+                {
+                    direct(target)
+                } else {
+                    let ((i0, i1), (j0, j1)) =
+                        (span(0, target[0], target[0]), span(1, target[1], target[1]));
+                    walk.max(&near, target, [i0, i1, j0, j1])
                 };
-                let ((i0, i1), (j0, j1)) = (span(0), span(1));
-                let mut best = 0.0f64;
-                for ranked in &order {
-                    // This bucket and every later one are no larger: none can change the max.
-                    if ranked.top <= best {
-                        break;
-                    }
-                    let (i, j) = (ranked.column as usize, ranked.row as usize);
-                    if i < i0 || i > i1 || j < j0 || j > j1 {
-                        continue;
-                    }
-                    let b = ranked.bucket as usize;
-                    match reached(&self.boxes[b], target, r2) {
-                        Reached::All => {
-                            best = ranked.top;
-                            break;
-                        }
-                        Reached::None => {}
-                        Reached::Some => {
-                            for k in self.start[b]..self.start[b + 1] {
-                                let q = [xs[k], ys[k]];
-                                if within(&q, target) {
-                                    best = best.max(values[k]);
-                                }
-                            }
+            }
+        }
+        out
+    }
+}
+
+/// One frame's walk over the buckets for a pose's max.
+struct Walk<'a> {
+    buckets: &'a PoseBuckets,
+    /// The contour in bucket order.
+    values: &'a [f64],
+    r2: f64,
+}
+
+impl Walk<'_> {
+    /// The largest value within the disc around `target` over the buckets `ranked` (largest
+    /// value first; every bucket of the disc's span `[i0, i1, j0, j1]` among them).
+    fn max(&self, ranked: &[Ranked], target: [f64; 2], span: [usize; 4]) -> f64 {
+        let [i0, i1, j0, j1] = span;
+        let b = self.buckets;
+        let mut best = 0.0f64;
+        for ranked in ranked {
+            // This bucket and every later one are no larger: none can change the max.
+            if ranked.top <= best {
+                break;
+            }
+            let (i, j) = (ranked.column as usize, ranked.row as usize);
+            if i < i0 || i > i1 || j < j0 || j > j1 {
+                continue;
+            }
+            let bucket = ranked.bucket as usize;
+            match reached(&b.boxes[bucket], target, self.r2) {
+                Reached::All => {
+                    best = ranked.top;
+                    break;
+                }
+                Reached::None => {}
+                Reached::Some => {
+                    for k in b.start[bucket]..b.start[bucket + 1] {
+                        let d = (b.xs[k] - target[0]).powi(2) + (b.ys[k] - target[1]).powi(2);
+                        if d <= self.r2 {
+                            best = best.max(self.values[k]);
                         }
                     }
                 }
-                best
-            })
-            .collect()
+            }
+        }
+        best
     }
 }
 
