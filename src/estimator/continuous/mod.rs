@@ -33,6 +33,8 @@ mod rules;
 mod surrogate;
 mod temporal;
 
+use std::sync::Arc;
+
 use crate::range::within;
 
 use serde::{Deserialize, Serialize};
@@ -179,6 +181,9 @@ pub struct Continuous {
     blocks: grid_levels::Blocks,
     /// The rule and each feature's reliability.
     fusion: rules::Fusion,
+    /// Each feature's fitted hyperparameters, held so that later fits of the same maps share
+    /// them (`surrogate::share`); empty when loaded.
+    shared_fits: Vec<Arc<surrogate::share::Fitted>>,
 }
 
 impl Continuous {
@@ -205,7 +210,7 @@ impl Continuous {
         let pose_standardisation =
             Standardisation::fit(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>(), 2);
         let feature_standardisation = Standardisation::fit(&rows, dim);
-        let hyperparameters = fit_hyperparameters(
+        let fitted_maps = fit_hyperparameters(
             &pose_standardisation,
             &feature_standardisation,
             &poses,
@@ -213,9 +218,9 @@ impl Continuous {
             settings.max_fit_samples,
             settings.iterations,
         );
-        let hyperparameters = (hyperparameters.into_iter().enumerate())
+        let hyperparameters = (fitted_maps.iter().enumerate())
             .map(|(i, h)| {
-                h.ok_or_else(|| {
+                h.as_ref().clone().ok_or_else(|| {
                     EstimatorError::Training(format!(
                         "the continuous tracker's surrogate of `{}` has a singular kernel \
                          matrix at every start",
@@ -271,6 +276,7 @@ impl Continuous {
             sample_features: rows,
         };
         let mut fitted = Self::assemble(file, surrogate);
+        fitted.shared_fits = fitted_maps;
         if let Some(validation) = &data.validation {
             fitted.learn_on_validation(validation.poses, validation.rows, data.missing_penalty)?;
         } else {
@@ -357,6 +363,7 @@ impl Continuous {
             bounds,
             blocks,
             fusion,
+            shared_fits: Vec::new(),
         }
     }
 

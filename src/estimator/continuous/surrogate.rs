@@ -6,6 +6,7 @@
 
 mod block;
 mod grid;
+pub(super) mod share;
 
 use std::sync::Arc;
 
@@ -62,7 +63,8 @@ pub(super) struct Surrogate {
     #[cfg_attr(not(test), allow(dead_code))]
     pose: Standardisation,
     features: Standardisation,
-    kernels: Vec<FeatureKernel>,
+    /// Shared with every live fit of the same feature map ([`share::kernel`]).
+    kernels: Vec<Arc<FeatureKernel>>,
     grid: Grid,
 }
 
@@ -95,6 +97,8 @@ pub(crate) fn grid_nodes(extent: [f64; 2], spacing: f64) -> [usize; 2] {
 /// Fits each feature's hyperparameters on at most `max_fit` evenly spaced samples: L-BFGS from
 /// two starts (length scale 1 and ¼ in standardised units), the better one wins; the features
 /// in parallel on two threads. `None` for a feature whose every start has a singular kernel.
+/// A feature fitted alike by a live fit is taken from it ([`share::hyperparameters`]); the
+/// caller keeps the results to share them on.
 pub(super) fn fit_hyperparameters(
     pose: &Standardisation,
     features: &Standardisation,
@@ -102,7 +106,7 @@ pub(super) fn fit_hyperparameters(
     rows: &[Vec<f64>],
     max_fit: usize,
     iterations: usize,
-) -> Vec<Option<SurrogateHyperparameters>> {
+) -> Vec<Arc<share::Fitted>> {
     let inputs = pose.apply_rows(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>());
     let outputs = features.apply_rows(rows);
     let dim = features.means.len();
@@ -110,21 +114,23 @@ pub(super) fn fit_hyperparameters(
     let subset: Vec<usize> = (0..m).map(|i| i * n / m).collect();
     let fit_one = |i: usize| {
         let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
-        let objective = Objective::new(&inputs, &column, 2, &subset);
-        let mut best: Option<(Vec<f64>, f64)> = None;
-        for length in [1.0f64, 0.25] {
-            let start = vec![length.ln(), length.ln(), 0.0, (1e-2f64).ln()];
-            if let Some(found) = minimise(&objective, start, iterations) {
-                if best.as_ref().is_none_or(|b| found.1 < b.1) {
-                    best = Some(found);
+        share::hyperparameters(&inputs, &column, m, iterations, || {
+            let objective = Objective::new(&inputs, &column, 2, &subset);
+            let mut best: Option<(Vec<f64>, f64)> = None;
+            for length in [1.0f64, 0.25] {
+                let start = vec![length.ln(), length.ln(), 0.0, (1e-2f64).ln()];
+                if let Some(found) = minimise(&objective, start, iterations) {
+                    if best.as_ref().is_none_or(|b| found.1 < b.1) {
+                        best = Some(found);
+                    }
                 }
             }
-        }
-        best.map(|(theta, value)| SurrogateHyperparameters {
-            length_scales: [theta[0].exp(), theta[1].exp()],
-            signal_std: theta[2].exp(),
-            noise_std: (theta[2] + theta[3]).exp(),
-            log_marginal_likelihood: -value * m as f64,
+            best.map(|(theta, value)| SurrogateHyperparameters {
+                length_scales: [theta[0].exp(), theta[1].exp()],
+                signal_std: theta[2].exp(),
+                noise_std: (theta[2] + theta[3]).exp(),
+                log_marginal_likelihood: -value * m as f64,
+            })
         })
     };
     on_two_threads(dim, fit_one)
@@ -156,13 +162,17 @@ impl Surrogate {
             .map(|p| [pose.apply(0, p[0]), pose.apply(1, p[1])])
             .collect();
         let outputs = features.apply_rows(rows);
-        let mut kernels = Vec::with_capacity(dim);
-        for (i, h) in hyper.iter().enumerate() {
+        // Factored on two threads (each kernel alone); the first failure in feature order is
+        // the error, as when they were factored one after the other.
+        let kernels = on_two_threads(hyper.len(), |i| {
             let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
-            let kernel = FeatureKernel::new(h, &standardised, &column, leave_one_out)
-                .map_err(|e| format!("feature {i}: {e}"))?;
-            kernels.push(kernel);
-        }
+            let h = &hyper[i];
+            share::kernel(h, &standardised, &column, leave_one_out, || {
+                FeatureKernel::new(h, &standardised, &column, leave_one_out)
+            })
+            .map_err(|e| format!("feature {i}: {e}"))
+        });
+        let kernels = kernels.into_iter().collect::<Result<Vec<_>, _>>()?;
         let grid = Grid::tabulate(&pose, &features, &kernels, poses, spacing);
         Ok(Self {
             pose,
@@ -340,7 +350,7 @@ fn rows_on_two_threads(
 fn grid_key(
     pose: &Standardisation,
     features: &Standardisation,
-    kernels: &[FeatureKernel],
+    kernels: &[Arc<FeatureKernel>],
     origin: [f64; 2],
     step: [f64; 2],
     nodes: [usize; 2],
