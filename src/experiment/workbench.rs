@@ -316,4 +316,46 @@ mod tests {
         assert_ne!(key(&settings), key(&other));
         assert!(fit_key(Method::KNN, &settings, &data).is_none());
     }
+
+    #[test]
+    fn rows_joined_from_the_extractors_are_the_rows_of_the_whole_set() {
+        let bench = Workbench::new();
+        let sim = SimSettings::default();
+        let w = sim.geometry.workspace;
+        let points = vec![
+            [w.x_min + 2.0, w.y_min + 3.0],
+            [w.x_max - 4.0, w.y_max - 1.0],
+        ];
+        let motion = Motion::Points { points };
+        let config = FeatureConfig::with_barycentre();
+        let set = config.check().expect("a valid configuration");
+        let rows = bench
+            .features(&sim, &motion, 7, &config, &set, &mut |_, _, _| {})
+            .expect("features");
+        let data = bench
+            .dataset(&sim, &motion, 7, &mut |_, _| {})
+            .expect("simulated");
+        let whole: FeatureRows = data.images().map(|image| set.extract(image)).collect();
+        assert_eq!(*rows, whole);
+        assert!(rows
+            .iter()
+            .all(|r| r.len() == 8 && r.iter().all(Option::is_some)));
+        // The whole set and its two parts are kept: the size functions alone are the default
+        // configuration's rows, which another variant then takes as they are.
+        assert_eq!(bench.features.lock().map(|m| m.len()).unwrap_or(0), 3);
+        let sizes = FeatureConfig::default();
+        let alone = bench
+            .features(
+                &sim,
+                &motion,
+                7,
+                &sizes,
+                &sizes.check().expect("valid"),
+                &mut |_, _, _| {},
+            )
+            .expect("features");
+        assert_eq!(bench.features.lock().map(|m| m.len()).unwrap_or(0), 3);
+        assert!((alone.iter().zip(rows.iter())).all(|(a, r)| a[..] == r[..6]));
+        assert!(extractor_parts(&sizes, &sizes.check().expect("valid")).is_empty());
+    }
 }

@@ -7,7 +7,7 @@
 //! last fit using a table is dropped it is freed, and the next fit tabulates it again.
 
 use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::sync::{Arc, Mutex, OnceLock, TryLockError, Weak};
 
 /// One grid's values (see `surrogate::Grid::table`).
 pub(super) type Table = Vec<[f64; 4]>;
@@ -26,19 +26,25 @@ fn live() -> &'static Live<Table> {
 
 /// The live table of `key`, or the one `build` makes (then live under `key`).
 pub(super) fn shared(key: Vec<u8>, build: impl FnOnce() -> Table) -> Arc<Table> {
-    match try_shared(live(), key, || Ok::<_, std::convert::Infallible>(build())) {
-        Ok(table) => table,
-        Err(never) => match never {},
+    let built = try_shared(live(), key, true, || {
+        Ok::<_, std::convert::Infallible>(build())
+    });
+    match built {
+        Some(Ok(table)) => table,
+        Some(Err(never)) => match never {},
+        None => unreachable!("a waiting call always gives a table"),
     }
 }
 
 /// The value live under `key` in `live`, or the one `build` makes (then live under `key`; an
-/// error is returned and nothing is kept).
+/// error is returned and nothing is kept). While another fit builds it, `wait` waits for that
+/// value, and without `wait` nothing happens (`None`): the caller can do other work first.
 pub(super) fn try_shared<T, E>(
     live: &Live<T>,
     key: Vec<u8>,
+    wait: bool,
     build: impl FnOnce() -> Result<T, E>,
-) -> Result<Arc<T>, E> {
+) -> Option<Result<Arc<T>, E>> {
     let slot = {
         let mut live = live.lock().unwrap_or_else(|e| e.into_inner());
         // Drop the keys of freed values (a slot being built is locked, and kept).
@@ -47,13 +53,20 @@ pub(super) fn try_shared<T, E>(
         });
         live.entry(key).or_default().clone()
     };
-    let mut held = slot.lock().unwrap_or_else(|e| e.into_inner());
+    let mut held = match slot.try_lock() {
+        Ok(held) => held,
+        Err(TryLockError::Poisoned(e)) => e.into_inner(),
+        Err(TryLockError::WouldBlock) if wait => slot.lock().unwrap_or_else(|e| e.into_inner()),
+        Err(TryLockError::WouldBlock) => return None,
+    };
     if let Some(value) = held.upgrade() {
-        return Ok(value);
+        return Some(Ok(value));
     }
-    let value = Arc::new(build()?);
-    *held = Arc::downgrade(&value);
-    Ok(value)
+    Some(build().map(|value| {
+        let value = Arc::new(value);
+        *held = Arc::downgrade(&value);
+        value
+    }))
 }
 
 #[cfg(test)]

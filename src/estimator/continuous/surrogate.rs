@@ -112,9 +112,9 @@ pub(super) fn fit_hyperparameters(
     let dim = features.means.len();
     let (n, m) = (poses.len(), poses.len().min(max_fit));
     let subset: Vec<usize> = (0..m).map(|i| i * n / m).collect();
-    let fit_one = |i: usize| {
+    let fit_one = |i: usize, wait: bool| {
         let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
-        share::hyperparameters(&inputs, &column, m, iterations, || {
+        share::hyperparameters(&inputs, &column, m, iterations, wait, || {
             let objective = Objective::new(&inputs, &column, 2, &subset);
             let mut best: Option<(Vec<f64>, f64)> = None;
             for length in [1.0f64, 0.25] {
@@ -133,7 +133,7 @@ pub(super) fn fit_hyperparameters(
             })
         })
     };
-    on_two_threads(dim, fit_one)
+    on_two_threads_busy_last(dim, fit_one)
 }
 
 impl Surrogate {
@@ -164,13 +164,13 @@ impl Surrogate {
         let outputs = features.apply_rows(rows);
         // Factored on two threads (each kernel alone); the first failure in feature order is
         // the error, as when they were factored one after the other.
-        let kernels = on_two_threads(hyper.len(), |i| {
+        let kernels = on_two_threads_busy_last(hyper.len(), |i, wait| {
             let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
             let h = &hyper[i];
-            share::kernel(h, &standardised, &column, leave_one_out, || {
+            let built = share::kernel(h, &standardised, &column, leave_one_out, wait, || {
                 FeatureKernel::new(h, &standardised, &column, leave_one_out)
-            })
-            .map_err(|e| format!("feature {i}: {e}"))
+            })?;
+            Some(built.map_err(|e| format!("feature {i}: {e}")))
         });
         let kernels = kernels.into_iter().collect::<Result<Vec<_>, _>>()?;
         let grid = Grid::tabulate(&pose, &features, &kernels, poses, spacing);
@@ -299,15 +299,32 @@ impl FeatureKernel {
     }
 }
 
-/// `f(0)`, …, `f(count − 1)` on two threads, each taking every other index: the results do not
-/// depend on the split. A panic in `f` is resumed here.
-fn on_two_threads<T: Send>(count: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+/// `f(i, wait)` for i in 0..count on two threads, each taking every other index, where `f`
+/// gives `None` without `wait` when another fit is computing the same shared value: those
+/// indices wait until the thread's others are done (so two fits that share values split them
+/// instead of one waiting for the other). A panic in `f` is resumed here.
+fn on_two_threads_busy_last<T: Send>(
+    count: usize,
+    f: impl Fn(usize, bool) -> Option<T> + Sync,
+) -> Vec<T> {
     let mut slots: Vec<Option<T>> = (0..count).map(|_| None).collect();
     std::thread::scope(|scope| {
         let f = &f;
         let handles: Vec<_> = (0..2)
             .map(|t| {
-                scope.spawn(move || (t..count).step_by(2).map(|i| (i, f(i))).collect::<Vec<_>>())
+                scope.spawn(move || {
+                    let mut done = Vec::new();
+                    let mut later = Vec::new();
+                    for i in (t..count).step_by(2) {
+                        match f(i, false) {
+                            Some(value) => done.push((i, value)),
+                            None => later.push(i),
+                        }
+                    }
+                    // With `wait`, `f` always gives a value.
+                    done.extend(later.into_iter().filter_map(|i| Some((i, f(i, true)?))));
+                    done
+                })
             })
             .collect();
         for handle in handles {
@@ -473,6 +490,48 @@ mod tests {
         // Smooth maps on a 1 mm mesh: held-out residuals are small but not zero.
         for r in rms {
             assert!(r > 0.0 && r < 1e-2, "{r}");
+        }
+    }
+
+    #[test]
+    fn a_feature_fitted_alike_is_shared_with_the_bits_of_a_fit_alone() {
+        let poses = workspace_mesh(8);
+        let value = |q: [f64; 2], i: usize| match i {
+            0 => (q[0] / 5.0).sin() + q[1] / 30.0,
+            1 => (q[0] * q[1] / 200.0).cos(),
+            _ => q[0] + 0.1 * q[1],
+        };
+        let rows = |count: usize| -> Vec<Vec<f64>> {
+            (poses.iter())
+                .map(|q| (0..count).map(|i| value(*q, i)).collect())
+                .collect()
+        };
+        let pose = Standardisation::fit(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>(), 2);
+        let fit = |count: usize| {
+            let rows = rows(count);
+            let features = Standardisation::fit(&rows, count);
+            fit_hyperparameters(&pose, &features, &poses, &rows, 40, 15)
+        };
+        let two = fit(2);
+        let alone: Vec<_> = two.iter().map(|h| h.as_ref().clone()).collect();
+        let three = fit(3);
+        for i in 0..2 {
+            assert!(Arc::ptr_eq(&two[i], &three[i]), "feature {i} fitted twice");
+        }
+        assert!(three[2].is_some());
+        drop((two, three));
+        // Freed with its last holder: fitted again, to the same bits.
+        let again = fit(2);
+        for (h, a) in again.iter().zip(&alone) {
+            assert_eq!(h.as_ref(), a);
+        }
+    }
+
+    #[test]
+    fn busy_indices_wait_and_every_result_lands_in_its_slot() {
+        for count in 0..8 {
+            let out = on_two_threads_busy_last(count, |i, wait| (wait || i % 3 != 0).then_some(i));
+            assert_eq!(out, (0..count).collect::<Vec<_>>(), "{count}");
         }
     }
 }

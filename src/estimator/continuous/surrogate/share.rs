@@ -15,13 +15,15 @@ pub(in crate::estimator::continuous) type Fitted = Option<SurrogateHyperparamete
 
 /// The hyperparameters `fit` finds for one feature: on the standardised pose `inputs` (x, y
 /// per sample) and feature `column`, from `m` evenly spaced samples, with `iterations`.
+/// While another fit finds them, `wait` waits, and without it nothing happens (`None`).
 pub(super) fn hyperparameters(
     inputs: &[f64],
     column: &[f64],
     m: usize,
     iterations: usize,
+    wait: bool,
     fit: impl FnOnce() -> Fitted,
-) -> Arc<Fitted> {
+) -> Option<Arc<Fitted>> {
     static LIVE: OnceLock<Live<Fitted>> = OnceLock::new();
     let mut key = Vec::with_capacity(8 * (2 + inputs.len() + column.len()));
     key.extend((m as u64).to_le_bytes());
@@ -30,22 +32,23 @@ pub(super) fn hyperparameters(
     key.push(b'|');
     append(&mut key, column);
     let live = LIVE.get_or_init(Mutex::default);
-    match try_shared(live, key, || Ok::<_, std::convert::Infallible>(fit())) {
-        Ok(fitted) => fitted,
+    match try_shared(live, key, wait, || Ok::<_, std::convert::Infallible>(fit()))? {
+        Ok(fitted) => Some(fitted),
         Err(never) => match never {},
     }
 }
 
 /// The kernel `build` factors for one feature with `h` on the standardised poses and the
 /// feature's standardised values `y` (with the leave-one-out diagonal or not); an error is not
-/// kept.
+/// kept. While another fit factors it, `wait` waits, and without it nothing happens (`None`).
 pub(super) fn kernel(
     h: &SurrogateHyperparameters,
     standardised: &[[f64; 2]],
     y: &[f64],
     leave_one_out: bool,
+    wait: bool,
     build: impl FnOnce() -> Result<FeatureKernel, String>,
-) -> Result<Arc<FeatureKernel>, String> {
+) -> Option<Result<Arc<FeatureKernel>, String>> {
     static LIVE: OnceLock<Live<FeatureKernel>> = OnceLock::new();
     // The log marginal likelihood is a record of the fit: the kernel does not depend on it.
     let numbers = [
@@ -60,7 +63,7 @@ pub(super) fn kernel(
     append(&mut key, standardised.as_flattened());
     key.push(b'|');
     append(&mut key, y);
-    try_shared(LIVE.get_or_init(Mutex::default), key, build)
+    try_shared(LIVE.get_or_init(Mutex::default), key, wait, build)
 }
 
 fn append(key: &mut Vec<u8>, values: &[f64]) {
