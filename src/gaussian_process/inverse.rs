@@ -14,9 +14,8 @@ const TILE: usize = 4;
 /// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
 /// Cholesky factor (column-major, upper part ignored); the rest of the returned matrix is 0.
 pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
-    let mut scratch = InverseScratch::default();
-    let mut out = vec![0.0; l.nrows() * l.nrows()];
-    inverse(l.as_slice(), l.nrows(), &mut scratch, &mut out);
+    let mut out = Vec::new();
+    upper_inverse_into(l, &mut InverseScratch::default(), &mut out);
     out
 }
 
@@ -35,28 +34,32 @@ pub(crate) fn upper_inverse_into(
     scratch: &mut InverseScratch,
     out: &mut Vec<f64>,
 ) {
-    out.resize(l.nrows() * l.nrows(), 0.0);
-    inverse(l.as_slice(), l.nrows(), scratch, out);
+    let n = l.nrows();
+    let len = n.div_ceil(TILE) * n * TILE;
+    out.resize(n * n, 0.0);
+    for buffer in [&mut scratch.rows_of_l, &mut scratch.m] {
+        buffer.clear();
+        buffer.resize(len, 0.0);
+    }
+    // Three slices apart, so the compiler knows that no store into one changes the others.
+    inverse(l.as_slice(), n, &mut scratch.rows_of_l, &mut scratch.m, out);
 }
 
 crate::simd::with_avx!(
     /// [`inverse_of`], with AVX where the processor has it.
-    fn inverse(l: &[f64], n: usize, scratch: &mut InverseScratch, out: &mut [f64]) -> () = inverse_of
+    fn inverse(l: &[f64], n: usize, rows_of_l: &mut [f64], m: &mut [f64], out: &mut [f64]) -> () = inverse_of
 );
 
-/// [`upper_inverse`] on a column-major slice, into `inverse` (n², only i ≤ j written).
+/// [`upper_inverse`] on a column-major slice, into `inverse` (n², only i ≤ j written), with
+/// `rows_of_l` and `m` zeroed, ⌈n/4⌉·4n long.
 ///
 /// Both factors are first laid out in panels of four (rows of L, columns of M) so that every
 /// tile reads its two operands from consecutive addresses, k after k.
 #[inline(always)]
-fn inverse_of(l: &[f64], n: usize, scratch: &mut InverseScratch, inverse: &mut [f64]) {
-    let panels = n.div_ceil(TILE);
+fn inverse_of(l: &[f64], n: usize, rows_of_l: &mut [f64], m: &mut [f64], inverse: &mut [f64]) {
     let panel_len = n * TILE;
     // Rows of L in panels: `rows_of_l[p][k][r]` = L(4p + r, k), zero past n and above the
     // diagonal.
-    let rows_of_l = &mut scratch.rows_of_l;
-    rows_of_l.clear();
-    rows_of_l.resize(panels * panel_len, 0.0);
     for k in 0..n {
         for i in k..n {
             rows_of_l[(i / TILE) * panel_len + k * TILE + i % TILE] = l[i + k * n];
@@ -64,9 +67,6 @@ fn inverse_of(l: &[f64], n: usize, scratch: &mut InverseScratch, inverse: &mut [
     }
     // M = L⁻¹ in column panels: `m[p][k][c]` = M(k, 4p + c); entries above the diagonal stay
     // exactly 0, and so do the padding columns past n.
-    let m = &mut scratch.m;
-    m.clear();
-    m.resize(panels * panel_len, 0.0);
     for (p, panel) in m.chunks_exact_mut(panel_len).enumerate() {
         let j0 = p * TILE;
         for i0 in (j0..n).step_by(TILE) {
