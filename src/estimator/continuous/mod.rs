@@ -33,8 +33,6 @@ mod rules;
 mod surrogate;
 mod temporal;
 
-use std::sync::Arc;
-
 use crate::range::within;
 
 use serde::{Deserialize, Serialize};
@@ -181,9 +179,8 @@ pub struct Continuous {
     blocks: grid_levels::Blocks,
     /// The rule and each feature's reliability.
     fusion: rules::Fusion,
-    /// Each feature's fitted hyperparameters, held so that later fits of the same maps share
-    /// them (`surrogate::share`); empty when loaded.
-    shared_fits: Vec<Arc<surrogate::share::Fitted>>,
+    /// Its maps' hyperparameters, held for later fits of the same maps (`surrogate::share`).
+    shared_fits: Vec<std::sync::Arc<surrogate::share::Fitted>>,
 }
 
 impl Continuous {
