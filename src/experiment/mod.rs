@@ -8,6 +8,7 @@
 //! [`PoseEstimator::estimate`](crate::estimator::PoseEstimator::estimate). What a run measured is
 //! recorded and written by [`crate::report`].
 
+mod fits;
 mod limit;
 mod sample;
 mod workbench;
@@ -199,14 +200,16 @@ pub fn run(
     let mut estimators = Vec::with_capacity(s.estimators.len());
     let mut records = Vec::new();
     let mut methods = Vec::with_capacity(s.estimators.len());
-    for &method in &s.estimators {
+    let mut ahead = fits::fit_heavy_ahead(&s.estimators, bench, &settings, &training);
+    for (&method, ahead) in s.estimators.iter().zip(&mut ahead) {
         let stage = format!("fit {method}");
         let clock = Instant::now();
         progress(&stage, 0, 1);
-        let estimator = bench
-            .fit(method, &settings, &training)
-            .map_err(|source| ExperimentError::Estimator { stage, source })?;
-        let fit_seconds = clock.elapsed().as_secs_f64();
+        let (fitted, fit_seconds) = ahead.take().unwrap_or_else(|| {
+            let fitted = bench.fit(method, &settings, &training);
+            (fitted, clock.elapsed().as_secs_f64())
+        });
+        let estimator = fitted.map_err(|source| ExperimentError::Estimator { stage, source })?;
         let clock = Instant::now();
         let mut method_records = Vec::new();
         let mut per_motion = Vec::with_capacity(tests.len());

@@ -111,16 +111,39 @@ impl Workbench {
         let dataset = self.dataset(sim, motion, seed, &mut |d, t| {
             progress(Step::Simulate, d, t)
         })?;
-        let key =
+        let key = |config: &FeatureConfig| {
             serde_json::json!({"sim": sim, "motion": motion, "seed": seed, "features": config})
-                .to_string();
-        memo(&self.features, key, || {
-            crate::external::extract(set, &dataset, self.threads(), &mut |d, t| {
-                progress(Step::Extract, d, t)
-            })
-            .map_err(Arc::new)
-        })
-        .map_err(|source| ExperimentError::External {
+                .to_string()
+        };
+        let extract = |set: &FeatureSet, progress: &mut dyn FnMut(usize, usize)| {
+            crate::external::extract(set, &dataset, self.threads(), progress).map_err(Arc::new)
+        };
+        let parts = extractor_parts(config, set);
+        let rows = memo(&self.features, key(config), || {
+            if parts.len() < 2 {
+                return extract(set, &mut |d, t| progress(Step::Extract, d, t));
+            }
+            // Each extractor's values depend on it and the image alone, so a row is its parts'
+            // rows one after the other; a part that another variant extracts is taken from it.
+            let count = parts.len();
+            let mut joined: FeatureRows = Vec::new();
+            for (k, (part, part_set)) in parts.iter().enumerate() {
+                let rows = memo(&self.features, key(part), || {
+                    extract(part_set, &mut |d, t| {
+                        progress(Step::Extract, k * t + d, count * t)
+                    })
+                })?;
+                if k == 0 {
+                    joined = rows.as_ref().clone();
+                } else {
+                    joined.iter_mut().zip(rows.iter()).for_each(|(row, part)| {
+                        row.extend_from_slice(part);
+                    });
+                }
+            }
+            Ok(joined)
+        });
+        rows.map_err(|source| ExperimentError::External {
             what: motion.name().to_string(),
             source,
         })
@@ -168,6 +191,40 @@ impl Workbench {
             Some(fitted) => Ok(fitted),
             None => method.fit(settings, data),
         }
+    }
+}
+
+/// `config` split into one configuration per built-in extractor (size functions, barycentre,
+/// tiles), each with its checked set, when it has two or more of them and no external program,
+/// and the parts' names are the set's in order; otherwise nothing (extract it whole).
+fn extractor_parts(config: &FeatureConfig, set: &FeatureSet) -> Vec<(FeatureConfig, FeatureSet)> {
+    if !config.external.is_empty() {
+        return Vec::new();
+    }
+    let alone = |part: usize| {
+        let mut c = config.clone();
+        c.size_functions.enabled = part == 0 && config.size_functions.enabled;
+        c.barycentre.enabled = part == 1 && config.barycentre.enabled;
+        c.tiles.enabled = part == 2 && config.tiles.enabled;
+        c
+    };
+    let enabled = [
+        config.size_functions.enabled,
+        config.barycentre.enabled,
+        config.tiles.enabled,
+    ];
+    let parts: Vec<(FeatureConfig, FeatureSet)> = (0..3)
+        .filter(|&k| enabled[k])
+        .filter_map(|k| {
+            let part = alone(k);
+            let checked = part.check().ok()?;
+            Some((part, checked))
+        })
+        .collect();
+    let names: Vec<String> = parts.iter().flat_map(|(_, s)| s.names()).collect();
+    match parts.len() >= 2 && names == set.names() {
+        true => parts,
+        false => Vec::new(),
     }
 }
 
@@ -258,5 +315,47 @@ mod tests {
         assert_eq!(key(&settings), key(&settings.clone()));
         assert_ne!(key(&settings), key(&other));
         assert!(fit_key(Method::KNN, &settings, &data).is_none());
+    }
+
+    #[test]
+    fn rows_joined_from_the_extractors_are_the_rows_of_the_whole_set() {
+        let bench = Workbench::new();
+        let sim = SimSettings::default();
+        let w = sim.geometry.workspace;
+        let points = vec![
+            [w.x_min + 2.0, w.y_min + 3.0],
+            [w.x_max - 4.0, w.y_max - 1.0],
+        ];
+        let motion = Motion::Points { points };
+        let config = FeatureConfig::with_barycentre();
+        let set = config.check().expect("a valid configuration");
+        let rows = bench
+            .features(&sim, &motion, 7, &config, &set, &mut |_, _, _| {})
+            .expect("features");
+        let data = bench
+            .dataset(&sim, &motion, 7, &mut |_, _| {})
+            .expect("simulated");
+        let whole: FeatureRows = data.images().map(|image| set.extract(image)).collect();
+        assert_eq!(*rows, whole);
+        assert!(rows
+            .iter()
+            .all(|r| r.len() == 8 && r.iter().all(Option::is_some)));
+        // The whole set and its two parts are kept: the size functions alone are the default
+        // configuration's rows, which another variant then takes as they are.
+        assert_eq!(bench.features.lock().map(|m| m.len()).unwrap_or(0), 3);
+        let sizes = FeatureConfig::default();
+        let alone = bench
+            .features(
+                &sim,
+                &motion,
+                7,
+                &sizes,
+                &sizes.check().expect("valid"),
+                &mut |_, _, _| {},
+            )
+            .expect("features");
+        assert_eq!(bench.features.lock().map(|m| m.len()).unwrap_or(0), 3);
+        assert!((alone.iter().zip(rows.iter())).all(|(a, r)| a[..] == r[..6]));
+        assert!(extractor_parts(&sizes, &sizes.check().expect("valid")).is_empty());
     }
 }

@@ -14,25 +14,52 @@ const TILE: usize = 4;
 /// The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
 /// Cholesky factor (column-major, upper part ignored); the rest of the returned matrix is 0.
 pub fn upper_inverse(l: &DMatrix<f64>) -> Vec<f64> {
-    inverse(l.as_slice(), l.nrows())
+    let mut out = Vec::new();
+    upper_inverse_into(l, &mut InverseScratch::default(), &mut out);
+    out
+}
+
+/// The working buffers of [`upper_inverse_into`], kept between calls: a fresh n² buffer each
+/// time is a page fault per 4 KiB (the allocator hands large blocks back to the system).
+#[derive(Debug, Default)]
+pub(crate) struct InverseScratch {
+    rows_of_l: Vec<f64>,
+    m: Vec<f64>,
+}
+
+/// [`upper_inverse`] into `out` (resized to n²), with `scratch`'s buffers: the same bits in the
+/// upper triangle; the entries below the diagonal are left as `out` held them (or 0).
+pub(crate) fn upper_inverse_into(
+    l: &DMatrix<f64>,
+    scratch: &mut InverseScratch,
+    out: &mut Vec<f64>,
+) {
+    let n = l.nrows();
+    let len = n.div_ceil(TILE) * n * TILE;
+    out.resize(n * n, 0.0);
+    for buffer in [&mut scratch.rows_of_l, &mut scratch.m] {
+        buffer.clear();
+        buffer.resize(len, 0.0);
+    }
+    // Three slices apart, so the compiler knows that no store into one changes the others.
+    inverse(l.as_slice(), n, &mut scratch.rows_of_l, &mut scratch.m, out);
 }
 
 crate::simd::with_avx!(
     /// [`inverse_of`], with AVX where the processor has it.
-    fn inverse(l: &[f64], n: usize) -> Vec<f64> = inverse_of
+    fn inverse(l: &[f64], n: usize, rows_of_l: &mut [f64], m: &mut [f64], out: &mut [f64]) -> () = inverse_of
 );
 
-/// [`upper_inverse`] on a column-major slice.
+/// [`upper_inverse`] on a column-major slice, into `inverse` (n², only i ≤ j written), with
+/// `rows_of_l` and `m` zeroed, ⌈n/4⌉·4n long.
 ///
 /// Both factors are first laid out in panels of four (rows of L, columns of M) so that every
 /// tile reads its two operands from consecutive addresses, k after k.
 #[inline(always)]
-fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
-    let panels = n.div_ceil(TILE);
+fn inverse_of(l: &[f64], n: usize, rows_of_l: &mut [f64], m: &mut [f64], inverse: &mut [f64]) {
     let panel_len = n * TILE;
     // Rows of L in panels: `rows_of_l[p][k][r]` = L(4p + r, k), zero past n and above the
     // diagonal.
-    let mut rows_of_l = vec![0.0; panels * panel_len];
     for k in 0..n {
         for i in k..n {
             rows_of_l[(i / TILE) * panel_len + k * TILE + i % TILE] = l[i + k * n];
@@ -40,7 +67,6 @@ fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
     }
     // M = L⁻¹ in column panels: `m[p][k][c]` = M(k, 4p + c); entries above the diagonal stay
     // exactly 0, and so do the padding columns past n.
-    let mut m = vec![0.0; panels * panel_len];
     for (p, panel) in m.chunks_exact_mut(panel_len).enumerate() {
         let j0 = p * TILE;
         for i0 in (j0..n).step_by(TILE) {
@@ -83,7 +109,6 @@ fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
     }
     // (K⁻¹)_ij for the columns j0 … j0 + 3 and every i ≤ j: sums over k ≥ j0 (M_kj = 0 below
     // j, and adding those exact zeros changes no bit).
-    let mut inverse = vec![0.0; n * n];
     let mut store = |acc: &[[f64; TILE]; TILE], i0: usize, j0: usize| {
         for (r, row) in acc.iter().enumerate() {
             for (c, value) in row.iter().enumerate() {
@@ -129,5 +154,4 @@ fn inverse_of(l: &[f64], n: usize) -> Vec<f64> {
             store(&acc, p * TILE, j0);
         }
     }
-    inverse
 }

@@ -136,9 +136,9 @@ pub(super) fn line_search(
         }
         // The gradient only once the value is accepted: as `eval` would, a non-finite one
         // rejects the step.
-        if let Some(point) = objective.value(&trial) {
+        if let Some(mut point) = objective.value(&trial) {
             if point.value <= f + 1e-4 * decrease {
-                if let Some(gt) = objective.gradient(&point) {
+                if let Some(gt) = objective.gradient(&mut point) {
                     return Some((trial, point.value, gt));
                 }
             }

@@ -169,3 +169,49 @@ fn reference_inverse(l: &DMatrix<f64>) -> Vec<f64> {
     }
     inverse
 }
+
+#[test]
+fn an_objective_reusing_its_buffers_gives_the_bits_of_a_fresh_one() {
+    let reused = objective();
+    let thetas = [
+        [0.3, -0.2, 0.1, -1.5],
+        [-1.0, 0.7, 0.4, -3.0],
+        [0.3, -0.2, 0.1, -1.5],
+        [1.2, 1.1, -0.5, -0.5],
+    ];
+    let bits = |(v, g): (f64, Vec<f64>)| (v.to_bits(), g.iter().map(|x| x.to_bits()).collect());
+    for theta in thetas {
+        let once: (u64, Vec<u64>) = bits(objective().eval(&theta).unwrap());
+        assert_eq!(bits(reused.eval(&theta).unwrap()), once, "θ = {theta:?}");
+    }
+    // And a whole optimisation, whose line searches drop points mid-way.
+    let start = vec![0.0, 0.0, 0.0, (0.1f64).ln()];
+    let twice = minimise(&reused, start.clone(), 50).unwrap();
+    assert_eq!(twice, minimise(&objective(), start, 50).unwrap());
+}
+
+#[test]
+fn the_inverse_into_stale_buffers_gives_the_same_upper_triangle() {
+    let mut scratch = inverse::InverseScratch::default();
+    let mut out = Vec::new();
+    // Larger, smaller, then larger again: every buffer holds another matrix's values.
+    for (n, seed) in [(37, 1u64), (13, 2), (9, 3), (41, 4)] {
+        let mut state = seed;
+        let b = DMatrix::from_fn(n, n, |_, _| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        });
+        let k = &b * b.transpose() + DMatrix::identity(n, n) * 0.5;
+        let chol = Cholesky::new(k).unwrap();
+        let fresh = upper_inverse(chol.l_dirty());
+        inverse::upper_inverse_into(chol.l_dirty(), &mut scratch, &mut out);
+        for j in 0..n {
+            for i in 0..=j {
+                let at = i + j * n;
+                assert_eq!(out[at].to_bits(), fresh[at].to_bits(), "n {n} ({i}, {j})");
+            }
+        }
+    }
+}

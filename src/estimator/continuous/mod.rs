@@ -179,6 +179,8 @@ pub struct Continuous {
     blocks: grid_levels::Blocks,
     /// The rule and each feature's reliability.
     fusion: rules::Fusion,
+    /// Its maps' hyperparameters, held for later fits of the same maps (`surrogate::share`).
+    shared_fits: Vec<std::sync::Arc<surrogate::share::Fitted>>,
 }
 
 impl Continuous {
@@ -205,7 +207,7 @@ impl Continuous {
         let pose_standardisation =
             Standardisation::fit(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>(), 2);
         let feature_standardisation = Standardisation::fit(&rows, dim);
-        let hyperparameters = fit_hyperparameters(
+        let fitted_maps = fit_hyperparameters(
             &pose_standardisation,
             &feature_standardisation,
             &poses,
@@ -213,9 +215,9 @@ impl Continuous {
             settings.max_fit_samples,
             settings.iterations,
         );
-        let hyperparameters = (hyperparameters.into_iter().enumerate())
+        let hyperparameters = (fitted_maps.iter().enumerate())
             .map(|(i, h)| {
-                h.ok_or_else(|| {
+                h.as_ref().clone().ok_or_else(|| {
                     EstimatorError::Training(format!(
                         "the continuous tracker's surrogate of `{}` has a singular kernel \
                          matrix at every start",
@@ -271,6 +273,7 @@ impl Continuous {
             sample_features: rows,
         };
         let mut fitted = Self::assemble(file, surrogate);
+        fitted.shared_fits = fitted_maps;
         if let Some(validation) = &data.validation {
             fitted.learn_on_validation(validation.poses, validation.rows, data.missing_penalty)?;
         } else {
@@ -357,6 +360,7 @@ impl Continuous {
             bounds,
             blocks,
             fusion,
+            shared_fits: Vec::new(),
         }
     }
 

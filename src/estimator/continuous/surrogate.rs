@@ -6,6 +6,7 @@
 
 mod block;
 mod grid;
+pub(super) mod share;
 
 use std::sync::Arc;
 
@@ -62,7 +63,8 @@ pub(super) struct Surrogate {
     #[cfg_attr(not(test), allow(dead_code))]
     pose: Standardisation,
     features: Standardisation,
-    kernels: Vec<FeatureKernel>,
+    /// Shared with every live fit of the same feature map ([`share::kernel`]).
+    kernels: Vec<Arc<FeatureKernel>>,
     grid: Grid,
 }
 
@@ -95,6 +97,8 @@ pub(crate) fn grid_nodes(extent: [f64; 2], spacing: f64) -> [usize; 2] {
 /// Fits each feature's hyperparameters on at most `max_fit` evenly spaced samples: L-BFGS from
 /// two starts (length scale 1 and ¼ in standardised units), the better one wins; the features
 /// in parallel on two threads. `None` for a feature whose every start has a singular kernel.
+/// A feature fitted alike by a live fit is taken from it ([`share::hyperparameters`]); the
+/// caller keeps the results to share them on.
 pub(super) fn fit_hyperparameters(
     pose: &Standardisation,
     features: &Standardisation,
@@ -102,32 +106,34 @@ pub(super) fn fit_hyperparameters(
     rows: &[Vec<f64>],
     max_fit: usize,
     iterations: usize,
-) -> Vec<Option<SurrogateHyperparameters>> {
+) -> Vec<Arc<share::Fitted>> {
     let inputs = pose.apply_rows(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>());
     let outputs = features.apply_rows(rows);
     let dim = features.means.len();
     let (n, m) = (poses.len(), poses.len().min(max_fit));
     let subset: Vec<usize> = (0..m).map(|i| i * n / m).collect();
-    let fit_one = |i: usize| {
+    let fit_one = |i: usize, wait: bool| {
         let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
-        let objective = Objective::new(&inputs, &column, 2, &subset);
-        let mut best: Option<(Vec<f64>, f64)> = None;
-        for length in [1.0f64, 0.25] {
-            let start = vec![length.ln(), length.ln(), 0.0, (1e-2f64).ln()];
-            if let Some(found) = minimise(&objective, start, iterations) {
-                if best.as_ref().is_none_or(|b| found.1 < b.1) {
-                    best = Some(found);
+        share::hyperparameters(&inputs, &column, m, iterations, wait, || {
+            let objective = Objective::new(&inputs, &column, 2, &subset);
+            let mut best: Option<(Vec<f64>, f64)> = None;
+            for length in [1.0f64, 0.25] {
+                let start = vec![length.ln(), length.ln(), 0.0, (1e-2f64).ln()];
+                if let Some(found) = minimise(&objective, start, iterations) {
+                    if best.as_ref().is_none_or(|b| found.1 < b.1) {
+                        best = Some(found);
+                    }
                 }
             }
-        }
-        best.map(|(theta, value)| SurrogateHyperparameters {
-            length_scales: [theta[0].exp(), theta[1].exp()],
-            signal_std: theta[2].exp(),
-            noise_std: (theta[2] + theta[3]).exp(),
-            log_marginal_likelihood: -value * m as f64,
+            best.map(|(theta, value)| SurrogateHyperparameters {
+                length_scales: [theta[0].exp(), theta[1].exp()],
+                signal_std: theta[2].exp(),
+                noise_std: (theta[2] + theta[3]).exp(),
+                log_marginal_likelihood: -value * m as f64,
+            })
         })
     };
-    on_two_threads(dim, fit_one)
+    on_two_threads_busy_last(dim, fit_one)
 }
 
 impl Surrogate {
@@ -156,13 +162,17 @@ impl Surrogate {
             .map(|p| [pose.apply(0, p[0]), pose.apply(1, p[1])])
             .collect();
         let outputs = features.apply_rows(rows);
-        let mut kernels = Vec::with_capacity(dim);
-        for (i, h) in hyper.iter().enumerate() {
+        // Factored on two threads (each kernel alone); the first failure in feature order is
+        // the error, as when they were factored one after the other.
+        let kernels = on_two_threads_busy_last(hyper.len(), |i, wait| {
             let column: Vec<f64> = outputs.iter().skip(i).step_by(dim).copied().collect();
-            let kernel = FeatureKernel::new(h, &standardised, &column, leave_one_out)
-                .map_err(|e| format!("feature {i}: {e}"))?;
-            kernels.push(kernel);
-        }
+            let h = &hyper[i];
+            let built = share::kernel(h, &standardised, &column, leave_one_out, wait, || {
+                FeatureKernel::new(h, &standardised, &column, leave_one_out)
+            })?;
+            Some(built.map_err(|e| format!("feature {i}: {e}")))
+        });
+        let kernels = kernels.into_iter().collect::<Result<Vec<_>, _>>()?;
         let grid = Grid::tabulate(&pose, &features, &kernels, poses, spacing);
         Ok(Self {
             pose,
@@ -289,15 +299,32 @@ impl FeatureKernel {
     }
 }
 
-/// `f(0)`, …, `f(count − 1)` on two threads, each taking every other index: the results do not
-/// depend on the split. A panic in `f` is resumed here.
-fn on_two_threads<T: Send>(count: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
+/// `f(i, wait)` for i in 0..count on two threads, each taking every other index, where `f`
+/// gives `None` without `wait` when another fit is computing the same shared value: those
+/// indices wait until the thread's others are done (so two fits that share values split them
+/// instead of one waiting for the other). A panic in `f` is resumed here.
+fn on_two_threads_busy_last<T: Send>(
+    count: usize,
+    f: impl Fn(usize, bool) -> Option<T> + Sync,
+) -> Vec<T> {
     let mut slots: Vec<Option<T>> = (0..count).map(|_| None).collect();
     std::thread::scope(|scope| {
         let f = &f;
         let handles: Vec<_> = (0..2)
             .map(|t| {
-                scope.spawn(move || (t..count).step_by(2).map(|i| (i, f(i))).collect::<Vec<_>>())
+                scope.spawn(move || {
+                    let mut done = Vec::new();
+                    let mut later = Vec::new();
+                    for i in (t..count).step_by(2) {
+                        match f(i, false) {
+                            Some(value) => done.push((i, value)),
+                            None => later.push(i),
+                        }
+                    }
+                    // With `wait`, `f` always gives a value.
+                    done.extend(later.into_iter().filter_map(|i| Some((i, f(i, true)?))));
+                    done
+                })
             })
             .collect();
         for handle in handles {
@@ -340,7 +367,7 @@ fn rows_on_two_threads(
 fn grid_key(
     pose: &Standardisation,
     features: &Standardisation,
-    kernels: &[FeatureKernel],
+    kernels: &[Arc<FeatureKernel>],
     origin: [f64; 2],
     step: [f64; 2],
     nodes: [usize; 2],
@@ -463,6 +490,48 @@ mod tests {
         // Smooth maps on a 1 mm mesh: held-out residuals are small but not zero.
         for r in rms {
             assert!(r > 0.0 && r < 1e-2, "{r}");
+        }
+    }
+
+    #[test]
+    fn a_feature_fitted_alike_is_shared_with_the_bits_of_a_fit_alone() {
+        let poses = workspace_mesh(8);
+        let value = |q: [f64; 2], i: usize| match i {
+            0 => (q[0] / 5.0).sin() + q[1] / 30.0,
+            1 => (q[0] * q[1] / 200.0).cos(),
+            _ => q[0] + 0.1 * q[1],
+        };
+        let rows = |count: usize| -> Vec<Vec<f64>> {
+            (poses.iter())
+                .map(|q| (0..count).map(|i| value(*q, i)).collect())
+                .collect()
+        };
+        let pose = Standardisation::fit(&poses.iter().map(|p| p.to_vec()).collect::<Vec<_>>(), 2);
+        let fit = |count: usize| {
+            let rows = rows(count);
+            let features = Standardisation::fit(&rows, count);
+            fit_hyperparameters(&pose, &features, &poses, &rows, 40, 15)
+        };
+        let two = fit(2);
+        let alone: Vec<_> = two.iter().map(|h| h.as_ref().clone()).collect();
+        let three = fit(3);
+        for i in 0..2 {
+            assert!(Arc::ptr_eq(&two[i], &three[i]), "feature {i} fitted twice");
+        }
+        assert!(three[2].is_some());
+        drop((two, three));
+        // Freed with its last holder: fitted again, to the same bits.
+        let again = fit(2);
+        for (h, a) in again.iter().zip(&alone) {
+            assert_eq!(h.as_ref(), a);
+        }
+    }
+
+    #[test]
+    fn busy_indices_wait_and_every_result_lands_in_its_slot() {
+        for count in 0..8 {
+            let out = on_two_threads_busy_last(count, |i, wait| (wait || i % 3 != 0).then_some(i));
+            assert_eq!(out, (0..count).collect::<Vec<_>>(), "{count}");
         }
     }
 }

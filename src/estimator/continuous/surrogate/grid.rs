@@ -2,6 +2,8 @@
 //! both slopes and the mixed derivative), and its bicubic Hermite interpolation between nodes.
 
 use super::{grid_key, grid_nodes, grid_share, rows_on_two_threads, FeatureKernel, Grid};
+use std::sync::Arc;
+
 use crate::planar::bounding_box;
 use crate::standardisation::Standardisation;
 
@@ -11,7 +13,7 @@ impl Grid {
     pub(super) fn tabulate(
         pose: &Standardisation,
         features: &Standardisation,
-        kernels: &[FeatureKernel],
+        kernels: &[Arc<FeatureKernel>],
         poses: &[[f64; 2]],
         spacing: f64,
     ) -> Self {
