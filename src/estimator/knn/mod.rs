@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
+use super::local_plane::plane_distance;
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -170,19 +171,24 @@ impl Knn {
         &self,
         features: &[Option<f64>],
     ) -> Result<Vec<(usize, f64)>, EstimatorError> {
+        Ok(match self.query(features)? {
+            Some((query, mask, complete)) => self.nearest(&query, &mask, complete),
+            None => Vec::new(),
+        })
+    }
+
+    /// The k nearest samples to a standardised query (see [`Knn::neighbours`]).
+    fn nearest(&self, query: &[f64], mask: &[f64], complete: bool) -> Vec<(usize, f64)> {
         let dim = self.file.header.feature_names.len();
-        let Some((query, mask, complete)) = self.query(features)? else {
-            return Ok(Vec::new());
-        };
         let k = self.file.settings.k;
         if let (true, Some(index)) = (complete, &self.index) {
             let row = |i: usize| &self.inputs[i * dim..(i + 1) * dim];
-            let found = index.nearest(&query, k, |i| squared_distance(row(i), &query, &mask));
+            let found = index.nearest(query, k, |i| squared_distance(row(i), query, mask));
             if let Some((best, _)) = found {
-                return Ok(best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect());
+                return best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect();
             }
         }
-        Ok(self.brute_force(&query, &mask))
+        self.brute_force(query, mask)
     }
 
     /// A frame's standardised values, the mask of its present features (1, or 0 for missing)
@@ -298,7 +304,11 @@ impl PoseEstimator for Knn {
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
         let (_, missing) = frame_values(features, self.file.header.feature_names.len())?;
-        let neighbours = self.neighbours(features)?;
+        let query = self.query(features)?;
+        let neighbours = match &query {
+            Some((query, mask, complete)) => self.nearest(query, mask, *complete),
+            None => Vec::new(),
+        };
         let weights: Vec<f64> = match self.file.settings.weights {
             KnnWeights::Uniform => vec![1.0; neighbours.len()],
             KnnWeights::Distance if neighbours.iter().any(|n| n.1 == 0.0) => neighbours
@@ -332,8 +342,18 @@ impl PoseEstimator for Knn {
                 let spread = (moments[0][0] + moments[1][1]).sqrt();
                 (Some(mean), Some(spread), Some(moments))
             };
+        // How far the frame lies from the samples at its answer, over its present features.
+        let score = pose.zip(query).map(|(pose, (query, mask, _))| {
+            plane_distance(
+                &query,
+                Some(&mask),
+                pose,
+                &self.file.sample_poses,
+                &self.inputs,
+            )
+        });
         Ok(PoseEstimate {
-            detection_score: neighbours.first().map(|n| n.1),
+            detection_score: score,
             pose,
             uncertainty_radius: radius,
             group: None,
