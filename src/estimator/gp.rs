@@ -22,7 +22,7 @@ use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::inputs::{check_header_features, check_training, frame_values, training_header};
-use super::local_plane::plane_distance;
+use super::local_plane::{nearest_by_scan, plane_distance};
 use super::samples::{check_exact_gp_count, check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -341,7 +341,17 @@ impl Gp {
         (
             pose,
             std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
-            plane_distance(&standard, None, pose, &file.sample_poses, &f.standard),
+            {
+                let near = nearest_by_scan(pose, &file.sample_poses);
+                plane_distance(
+                    &standard,
+                    None,
+                    pose,
+                    &file.sample_poses,
+                    &f.standard,
+                    &near,
+                )
+            },
         )
     }
 }

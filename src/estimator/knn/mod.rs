@@ -7,6 +7,10 @@
 //! estimate. Ties in distance go to the lower sample index. A frame with every feature present
 //! is searched through a k-d tree when one pays (`index.rs`: exact, the brute force's answer to
 //! the bit); otherwise, and whenever a distance overflows, by brute force: O(n·D) per frame.
+//! `detection_score` is how far the frame's standardised features (those present) lie from a
+//! plane through the samples nearest its answer (`local_plane.rs`, as the GP's): the nearest
+//! sample's distance barely rose when a few of many features were corrupted (salt-and-pepper),
+//! since the neighbours moved to poses that absorbed them. O(n) more per frame.
 
 mod index;
 #[cfg(test)]
@@ -20,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
-use super::local_plane::plane_distance;
+use super::local_plane::{plane_distance, PoseGrid};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -78,7 +82,8 @@ impl KnnSettings {
 /// Estimate: the weighted mean of the k nearest sample poses in standardised feature space
 /// (Euclidean, over the frame's present features). `uncertainty_radius`: the weighted RMS
 /// distance of those poses from the estimate (with the estimate's weights; 0 when every weight
-/// sits on one pose). No group, no conflict level.
+/// sits on one pose). Detection score: see the module documentation. No group, no conflict
+/// level.
 #[derive(Debug, Clone)]
 pub struct Knn {
     file: KnnFile,
@@ -86,6 +91,8 @@ pub struct Knn {
     inputs: Vec<f64>,
     /// The tree over them, where one pays.
     index: Option<index::Index>,
+    /// The sample poses in cells, for the detection score's nearest samples.
+    grid: PoseGrid,
 }
 
 /// The model file, and the fitted state.
@@ -146,6 +153,7 @@ impl Knn {
             squared_distance(&inputs[i * dim..(i + 1) * dim], query, &mask)
         });
         Self {
+            grid: PoseGrid::new(&file.sample_poses),
             file,
             inputs,
             index,
@@ -350,6 +358,7 @@ impl PoseEstimator for Knn {
                 pose,
                 &self.file.sample_poses,
                 &self.inputs,
+                &self.grid.nearest(pose, &self.file.sample_poses),
             )
         });
         Ok(PoseEstimate {
