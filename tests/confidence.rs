@@ -155,8 +155,11 @@ fn the_confidence_sweep_under_salt_and_pepper_and_a_dark_box_meets_the_readme_st
     assert!((0.8..=1.35).contains(&dark), "{dark}");
     let dark_cover = confidence(&runs, "occluder-dark", "continuous").coverage_corrupted;
     assert!(dark_cover.unwrap() < 0.9, "{dark_cover:?}");
-    // The GP's detection score (its features' distance from the samples' at its answer) flags
-    // salt-and-pepper frames: its regions or abstentions hold nearly all of them.
-    let gp = confidence(&runs, "salt-pepper", "gp");
-    assert!(gp.coverage_corrupted.unwrap() >= 0.9, "{gp:?}");
+    // The GP's and k-NN's detection score (the frame's features' distance from the samples' at
+    // its answer) flags salt-and-pepper frames: their regions or abstentions hold nearly all of
+    // them (k-NN's 0.75 with the nearest sample's distance as its score).
+    for method in ["gp", "knn"] {
+        let c = confidence(&runs, "salt-pepper", method);
+        assert!(c.coverage_corrupted.unwrap() >= 0.9, "{method}: {c:?}");
+    }
 }

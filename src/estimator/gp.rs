@@ -11,17 +11,18 @@
 //! an isotropic 2-D Gaussian whose per-axis standard deviation is the RMS over x and y of the
 //! predictive standard deviation (latent variance plus noise), in mm. `detection_score` is how
 //! far the frame's standardised features lie from those the samples show at the estimate (every
-//! feature alike, see `Factor::inconsistency`), so a corrupted feature the kernel ignores still
+//! feature alike, see `local_plane.rs`), so a corrupted feature the kernel ignores still
 //! raises it. Fitting costs O(m³) per optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a
 //! frame costs O(n·D) for the mean and the score and O(n²) for the variance.
 
 use crate::range::within;
 use std::path::Path;
 
-use nalgebra::{DMatrix, Matrix3, Vector3};
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::inputs::{check_header_features, check_training, frame_values, training_header};
+use super::local_plane::{nearest_by_scan, plane_distance};
 use super::samples::{check_exact_gp_count, check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -34,9 +35,6 @@ use crate::standardisation::Standardisation;
 const JITTERS: [f64; 9] = [1e-10, 1e-9, 1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2];
 /// The 90 % disc of an isotropic 2-D Gaussian has radius σ·√(−2 ln 0.1).
 const DISC_90: f64 = 2.145_966_026_289_347;
-/// Samples nearest the estimate that the detection score's local plane goes through (a 3 × 3
-/// block of a mesh).
-const LOCAL_SAMPLES: usize = 9;
 
 /// How the Gaussian-process baseline is fitted.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -308,7 +306,7 @@ impl Gp {
     }
 
     /// Predictive mean (mm), the RMS over x and y of the predictive standard deviation (mm) and
-    /// the detection score ([`Factor::inconsistency`]), for a complete row of feature values.
+    /// the detection score ([`plane_distance`]), for a complete row of feature values.
     fn predict(&self, values: &[f64]) -> ([f64; 2], f64, f64) {
         let (f, h, file) = (&self.factor, &self.file.hyperparameters, &self.file);
         let standard: Vec<f64> = (values.iter().enumerate())
@@ -343,7 +341,17 @@ impl Gp {
         (
             pose,
             std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
-            f.inconsistency(&standard, pose, &file.sample_poses),
+            {
+                let near = nearest_by_scan(pose, &file.sample_poses);
+                plane_distance(
+                    &standard,
+                    None,
+                    pose,
+                    &file.sample_poses,
+                    &f.standard,
+                    &near,
+                )
+            },
         )
     }
 }
@@ -465,58 +473,6 @@ impl Factor {
             }
         }
         Err("the kernel matrix is not positive definite, even with jitter of 1e-2 σf²".into())
-    }
-}
-
-impl Factor {
-    /// The detection score: how far the frame's standardised features lie from those the samples
-    /// show at the estimated `pose` — the Euclidean norm, over every feature alike, of the query
-    /// less a plane through the [`LOCAL_SAMPLES`] samples nearest that pose (least squares, per
-    /// feature). Every feature counts whatever its length scale: a feature the kernel learned to
-    /// ignore (an occluded tile) still shows the frame is unlike any sample near its answer.
-    /// Infinite only when a residual itself overflows.
-    fn inconsistency(&self, standard: &[f64], pose: [f64; 2], poses: &[[f64; 2]]) -> f64 {
-        let dim = standard.len();
-        let mut near: Vec<(f64, usize)> = (poses.iter().enumerate())
-            .map(|(i, p)| ((p[0] - pose[0]).powi(2) + (p[1] - pose[1]).powi(2), i))
-            .collect();
-        let m = near.len().min(LOCAL_SAMPLES);
-        // Ties to the lower index, so the score does not depend on the sort.
-        near.select_nth_unstable_by(m - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let offsets: Vec<(Vector3<f64>, usize)> = (near[..m].iter())
-            .map(|&(_, i)| {
-                let u = Vector3::new(1.0, poses[i][0] - pose[0], poses[i][1] - pose[1]);
-                (u, i)
-            })
-            .collect();
-        // Normal equations of f ≈ a + b·(p − pose); a little ridge on the slopes keeps them
-        // solvable when the poses are collinear (then a is their mean).
-        let mut gram = Matrix3::<f64>::zeros();
-        for (u, _) in &offsets {
-            gram += u * u.transpose();
-        }
-        gram[(1, 1)] += 1e-9;
-        gram[(2, 2)] += 1e-9;
-        let Some(inverse) = gram.try_inverse() else {
-            return f64::INFINITY;
-        };
-        let row = inverse.row(0);
-        let residuals: Vec<f64> = (0..dim)
-            .map(|d| {
-                let mut rhs = Vector3::zeros();
-                for (u, i) in &offsets {
-                    rhs += u * self.standard[i * dim + d];
-                }
-                standard[d] - row.dot(&rhs.transpose())
-            })
-            .collect();
-        let squares: f64 = residuals.iter().map(|r| r.powi(2)).sum();
-        if squares.is_finite() {
-            squares.sqrt()
-        } else {
-            // A frame far beyond the samples overflows the squares: the norm itself.
-            super::inputs::scaled_norm(residuals.iter().copied())
-        }
     }
 }
 

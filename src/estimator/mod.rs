@@ -14,6 +14,7 @@ mod evidential;
 mod gp;
 mod inputs;
 mod knn;
+mod local_plane;
 mod motion;
 mod particle;
 mod registry;

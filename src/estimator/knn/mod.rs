@@ -7,6 +7,10 @@
 //! estimate. Ties in distance go to the lower sample index. A frame with every feature present
 //! is searched through a k-d tree when one pays (`index.rs`: exact, the brute force's answer to
 //! the bit); otherwise, and whenever a distance overflows, by brute force: O(n·D) per frame.
+//! `detection_score` is how far the frame's standardised features (those present) lie from a
+//! plane through the samples nearest its answer (`local_plane.rs`, as the GP's): the nearest
+//! sample's distance barely rose when a few of many features were corrupted (salt-and-pepper),
+//! since the neighbours moved to poses that absorbed them. O(n) more per frame.
 
 mod index;
 #[cfg(test)]
@@ -20,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
+use super::local_plane::{plane_distance, PoseGrid};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -77,7 +82,8 @@ impl KnnSettings {
 /// Estimate: the weighted mean of the k nearest sample poses in standardised feature space
 /// (Euclidean, over the frame's present features). `uncertainty_radius`: the weighted RMS
 /// distance of those poses from the estimate (with the estimate's weights; 0 when every weight
-/// sits on one pose). No group, no conflict level.
+/// sits on one pose). Detection score: see the module documentation. No group, no conflict
+/// level.
 #[derive(Debug, Clone)]
 pub struct Knn {
     file: KnnFile,
@@ -85,6 +91,8 @@ pub struct Knn {
     inputs: Vec<f64>,
     /// The tree over them, where one pays.
     index: Option<index::Index>,
+    /// The sample poses in cells, for the detection score's nearest samples.
+    grid: PoseGrid,
 }
 
 /// The model file, and the fitted state.
@@ -145,6 +153,7 @@ impl Knn {
             squared_distance(&inputs[i * dim..(i + 1) * dim], query, &mask)
         });
         Self {
+            grid: PoseGrid::new(&file.sample_poses),
             file,
             inputs,
             index,
@@ -170,19 +179,24 @@ impl Knn {
         &self,
         features: &[Option<f64>],
     ) -> Result<Vec<(usize, f64)>, EstimatorError> {
+        Ok(match self.query(features)? {
+            Some((query, mask, complete)) => self.nearest(&query, &mask, complete),
+            None => Vec::new(),
+        })
+    }
+
+    /// The k nearest samples to a standardised query (see [`Knn::neighbours`]).
+    fn nearest(&self, query: &[f64], mask: &[f64], complete: bool) -> Vec<(usize, f64)> {
         let dim = self.file.header.feature_names.len();
-        let Some((query, mask, complete)) = self.query(features)? else {
-            return Ok(Vec::new());
-        };
         let k = self.file.settings.k;
         if let (true, Some(index)) = (complete, &self.index) {
             let row = |i: usize| &self.inputs[i * dim..(i + 1) * dim];
-            let found = index.nearest(&query, k, |i| squared_distance(row(i), &query, &mask));
+            let found = index.nearest(query, k, |i| squared_distance(row(i), query, mask));
             if let Some((best, _)) = found {
-                return Ok(best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect());
+                return best.into_iter().map(|(d2, i)| (i, d2.sqrt())).collect();
             }
         }
-        Ok(self.brute_force(&query, &mask))
+        self.brute_force(query, mask)
     }
 
     /// A frame's standardised values, the mask of its present features (1, or 0 for missing)
@@ -298,7 +312,11 @@ impl PoseEstimator for Knn {
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
         let (_, missing) = frame_values(features, self.file.header.feature_names.len())?;
-        let neighbours = self.neighbours(features)?;
+        let query = self.query(features)?;
+        let neighbours = match &query {
+            Some((query, mask, complete)) => self.nearest(query, mask, *complete),
+            None => Vec::new(),
+        };
         let weights: Vec<f64> = match self.file.settings.weights {
             KnnWeights::Uniform => vec![1.0; neighbours.len()],
             KnnWeights::Distance if neighbours.iter().any(|n| n.1 == 0.0) => neighbours
@@ -332,8 +350,19 @@ impl PoseEstimator for Knn {
                 let spread = (moments[0][0] + moments[1][1]).sqrt();
                 (Some(mean), Some(spread), Some(moments))
             };
+        // How far the frame lies from the samples at its answer, over its present features.
+        let score = pose.zip(query).map(|(pose, (query, mask, _))| {
+            plane_distance(
+                &query,
+                Some(&mask),
+                pose,
+                &self.file.sample_poses,
+                &self.inputs,
+                &self.grid.nearest(pose, &self.file.sample_poses),
+            )
+        });
         Ok(PoseEstimate {
-            detection_score: neighbours.first().map(|n| n.1),
+            detection_score: score,
             pose,
             uncertainty_radius: radius,
             group: None,

@@ -140,3 +140,70 @@ fn features_without_structure_keep_the_brute_force_and_far_frames_still_rank() {
     assert_like_brute_force(&knn, &[far.clone()]);
     assert!(knn.neighbours(&far).expect("a query")[0].1 > 1e150);
 }
+
+/// The detection score of `features` (a frame with an estimate).
+fn score(knn: &Knn, features: &[Option<f64>]) -> f64 {
+    let e = knn.estimate(features).expect("a frame");
+    e.detection_score.expect("a score")
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+#[test]
+fn the_score_sees_one_corrupted_feature_among_many_and_skips_a_missing_one() {
+    // Samples on the manifold at the poses they come from (a 1 mm mesh, as the scenarios').
+    let mut rng = ChaCha8Rng::seed_from_u64(43);
+    let poses: Vec<[f64; 2]> = (0..400)
+        .map(|i| [(i % 20) as f64 - 9.5, (i / 20) as f64 + 38.0])
+        .collect();
+    let rows: Rows = poses.iter().map(|p| manifold(*p, 8)).collect();
+    let names: Vec<String> = (0..8).map(|d| format!("f{d}")).collect();
+    let data = TrainingSet::new(
+        &names,
+        Labelled {
+            poses: &poses,
+            rows: &rows,
+        },
+    );
+    let knn = Knn::fit(&KnnSettings::default(), &data).expect("k-NN fits");
+    let frames: Vec<_> = (0..60)
+        .map(|_| manifold(random_pose(&mut rng), 8))
+        .collect();
+    // One feature off by a standard deviation of its own: a frame no sample pose shows.
+    let scale = knn.file.standardisation.scales[3];
+    let struck: Vec<_> = (frames.iter().cloned())
+        .map(|mut f| {
+            f[3] = f[3].map(|v| v + scale);
+            f
+        })
+        .collect();
+    let clean = median(frames.iter().map(|f| score(&knn, f)).collect());
+    let corrupted = median(struck.iter().map(|f| score(&knn, f)).collect());
+    assert!(corrupted > 3.0 * clean, "{corrupted} against {clean}");
+    // The nearest sample's distance, the score before, moved less: the neighbours shift to
+    // other poses to absorb the corrupted feature.
+    let nearest = |f: &Vec<Option<f64>>| knn.neighbours(f).expect("a frame")[0].1;
+    let before = median(struck.iter().map(nearest).collect::<Vec<_>>())
+        / median(frames.iter().map(nearest).collect::<Vec<_>>());
+    assert!(
+        corrupted / clean > before,
+        "{} against {before}",
+        corrupted / clean
+    );
+    // The corrupted feature missing: the score over the others is a clean frame's again.
+    let gaps: Vec<f64> = (struck.iter().cloned())
+        .map(|mut f| {
+            f[3] = None;
+            score(&knn, &f)
+        })
+        .collect();
+    assert!(median(gaps) < 2.0 * clean);
+    // Beyond the double range: finite, and as large as the frame is far.
+    let mut far = frames[0].clone();
+    far[1] = Some(1e200);
+    let s = score(&knn, &far);
+    assert!(s.is_finite() && s > 1e150, "{s}");
+}
