@@ -23,6 +23,7 @@
 mod learn;
 mod likelihood;
 mod motion;
+mod pool;
 mod radius;
 
 use learn::{DEFAULT_MOTION_NOISE, DEFAULT_OUTLIER_SHARE};
@@ -422,7 +423,8 @@ mod tests {
             let scales = filter.maps.residual_scales();
             frame.prepare(&values, scales, (&norms, &uniforms), eps);
             let mut logs = Vec::new();
-            frame.log_likelihoods(&filter.maps, &particles, &mut logs);
+            let mut scratch = likelihood::BlockScratch::default();
+            frame.log_likelihoods(&filter.maps, &particles, &mut scratch, &mut logs);
             assert_eq!(logs.len(), particles.len());
             let mut mapped = vec![0.0; 12];
             for (&q, fast) in particles.iter().zip(&logs) {
