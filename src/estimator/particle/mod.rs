@@ -18,7 +18,7 @@
 //! - Estimate: the weighted mean; uncertainty: the radius holding 90 % of the weight; a frame
 //!   without a usable feature is the prediction (`predicted`).
 //! - Seeded: every motion starts from the model's seed, so a scenario and its seed give the
-//!   same estimates.
+//!   same estimates, on one thread or two (`motion`, from 5,000 particles).
 
 mod learn;
 mod likelihood;

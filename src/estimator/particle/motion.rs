@@ -1,5 +1,8 @@
 //! One motion under the particle filter: predict (the line's shift for a share of the
 //! particles, then a Gaussian step), weigh by the frame's likelihood, resample when degenerate.
+//! From `PARALLEL_FROM` particles the per-particle work (moves, likelihood, weights, the
+//! radius's sort by halves) runs on two threads ([`Pool`]); the random draws and every sum stay
+//! on the caller, in the serial order, so the bits do not depend on the threads.
 
 use std::sync::{Mutex, MutexGuard, PoisonError};
 
@@ -8,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use super::likelihood::{exp, BlockScratch, FrameLikelihood, BLOCK};
-use super::pool::{Disjoint, Pool};
+use super::pool::{Disjoint, Outcome, Pool};
 use super::radius::{merged_radius, WeightedRadius};
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
@@ -19,6 +22,14 @@ use crate::estimator::{EstimateFlags, EstimatorError, MotionTracker, PoseEstimat
 /// handing chunks to a second thread costs more than it saves (measured in docs/results.md,
 /// "Benchmarks").
 const PARALLEL_FROM: usize = 5_000;
+/// A frame in which the caller waited this long for the worker, or ran more than
+/// `ALONE_SHARE` of the chunks itself, finds the second core busy (a loaded machine): the
+/// next frames run on one thread, `BACKOFF_FROM` of them, doubling while it lasts, at most
+/// `BACKOFF_TO`. The results are the same bits either way.
+const WAITED_AT_MOST: std::time::Duration = std::time::Duration::from_micros(150);
+const ALONE_SHARE: f64 = 0.8;
+const BACKOFF_FROM: u32 = 8;
+const BACKOFF_TO: u32 = 512;
 /// Particles per chunk of the weights' update (exponentials only: larger than a block).
 const WEIGHT_CHUNK: usize = 4 * BLOCK;
 
@@ -46,8 +57,15 @@ pub(super) struct FilterMotion<'a> {
     scratch: [Mutex<BlockScratch>; 2],
     radius: [Mutex<WeightedRadius>; 2],
     resampled: Vec<[f64; 2]>,
-    /// The second thread, from `PARALLEL_FROM` particles.
+    /// The second thread, from `PARALLEL_FROM` particles; whether it is used this frame, and
+    /// whether it goes unused after frames that found it slow (`adaptive`): for so many more
+    /// frames (`serial_frames`), the last such pause (`backoff`), and the frame's jobs so far.
     pool: Option<Pool>,
+    threads: bool,
+    adaptive: bool,
+    serial_frames: u32,
+    backoff: u32,
+    outcome: Outcome,
 }
 
 /// One particle's random draw for the prediction: its Gaussian step (in σ) along the line, or
@@ -87,10 +105,16 @@ impl Prediction {
     }
 }
 
-/// Runs `work(chunk, thread)` for each of `chunks`, on both threads where there is a pool.
-fn each_chunk(pool: Option<&Pool>, chunks: usize, work: &(dyn Fn(usize, usize) + Sync)) {
+/// Runs `work(chunk, thread)` for each of `chunks`, on both threads where there is a pool,
+/// adding how it went to `outcome`.
+fn each_chunk(
+    pool: Option<&Pool>,
+    outcome: &mut Outcome,
+    chunks: usize,
+    work: &(dyn Fn(usize, usize) + Sync),
+) {
     match pool {
-        Some(pool) => pool.run(chunks, work),
+        Some(pool) => *outcome = outcome.add(pool.run(chunks, work)),
         None => (0..chunks).for_each(|chunk| work(chunk, 0)),
     }
 }
@@ -103,10 +127,12 @@ impl<'a> FilterMotion<'a> {
     /// Particles spread uniformly over the sample poses' bounding box, from the model's seed.
     pub(super) fn new(filter: &'a ParticleFilter) -> Self {
         let n = filter.file.settings.particles;
-        Self::with_threads(filter, n >= PARALLEL_FROM)
+        let mut motion = Self::with_threads(filter, n >= PARALLEL_FROM);
+        motion.adaptive = true;
+        motion
     }
 
-    /// As [`FilterMotion::new`], on two threads or one.
+    /// As [`FilterMotion::new`], on two threads in every frame or on one.
     pub(super) fn with_threads(filter: &'a ParticleFilter, two: bool) -> Self {
         let (lo, hi) = filter.maps.sample_bounds();
         let mut rng = ChaCha8Rng::seed_from_u64(filter.file.seed);
@@ -138,6 +164,41 @@ impl<'a> FilterMotion<'a> {
             radius: [radius(), radius()],
             resampled: Vec::with_capacity(n),
             pool: two.then(Pool::new).flatten(),
+            threads: false,
+            adaptive: false,
+            serial_frames: 0,
+            backoff: 0,
+            outcome: Outcome::default(),
+        }
+    }
+
+    /// The pool if this frame uses it.
+    fn pool(&self) -> Option<&Pool> {
+        self.pool.as_ref().filter(|_| self.threads)
+    }
+
+    /// Decides whether this frame runs on two threads.
+    fn start_frame(&mut self) {
+        self.outcome = Outcome::default();
+        self.threads = self.pool.is_some() && self.serial_frames == 0;
+        self.serial_frames = self.serial_frames.saturating_sub(1);
+    }
+
+    /// After a frame on two threads: pauses the worker when it did not keep up.
+    fn end_frame(&mut self) {
+        let Outcome {
+            own,
+            chunks,
+            waited,
+        } = self.outcome;
+        if !(self.threads && self.adaptive) {
+            return;
+        }
+        if waited > WAITED_AT_MOST || own as f64 > ALONE_SHARE * chunks as f64 {
+            self.backoff = (2 * self.backoff).clamp(BACKOFF_FROM, BACKOFF_TO);
+            self.serial_frames = self.backoff;
+        } else {
+            self.backoff = 0;
         }
     }
 
@@ -172,26 +233,32 @@ impl<'a> FilterMotion<'a> {
         );
         let maxes = Disjoint::new(&mut self.maxes);
         let (draws, likelihood, scratch) = (&self.draws, &self.likelihood, &self.scratch);
-        each_chunk(self.pool.as_ref(), n.div_ceil(BLOCK), &|chunk, thread| {
-            let range = chunk * BLOCK..((chunk + 1) * BLOCK).min(n);
-            // SAFETY: each chunk takes its own range of each slice.
-            let (particles, logs, max) = unsafe {
-                (
-                    particles.range(range.clone()),
-                    logs.range(range.clone()),
-                    maxes.range(chunk..chunk + 1),
-                )
-            };
-            if let Some(prediction) = prediction {
-                for (p, &draw) in particles.iter_mut().zip(&draws[range]) {
-                    *p = prediction.apply(*p, draw);
+        let pool = self.pool.as_ref().filter(|_| self.threads);
+        each_chunk(
+            pool,
+            &mut self.outcome,
+            n.div_ceil(BLOCK),
+            &|chunk, thread| {
+                let range = chunk * BLOCK..((chunk + 1) * BLOCK).min(n);
+                // SAFETY: each chunk takes its own range of each slice.
+                let (particles, logs, max) = unsafe {
+                    (
+                        particles.range(range.clone()),
+                        logs.range(range.clone()),
+                        maxes.range(chunk..chunk + 1),
+                    )
+                };
+                if let Some(prediction) = prediction {
+                    for (p, &draw) in particles.iter_mut().zip(&draws[range]) {
+                        *p = prediction.apply(*p, draw);
+                    }
                 }
-            }
-            if weigh {
-                likelihood.block(maps, particles, &mut lock(&scratch[thread]), logs);
-                max[0] = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            }
-        });
+                if weigh {
+                    likelihood.block(maps, particles, &mut lock(&scratch[thread]), logs);
+                    max[0] = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                }
+            },
+        );
     }
 
     /// Weights by the frame's likelihood (`logs`, with `maxes`); −ln of the predictive
@@ -205,15 +272,21 @@ impl<'a> FilterMotion<'a> {
             return None;
         }
         let n = self.weights.len();
+        let pool = self.pool.as_ref().filter(|_| self.threads);
         let (weights, logs) = (Disjoint::new(&mut self.weights), &self.logs);
-        each_chunk(self.pool.as_ref(), n.div_ceil(WEIGHT_CHUNK), &|chunk, _| {
-            let range = chunk * WEIGHT_CHUNK..((chunk + 1) * WEIGHT_CHUNK).min(n);
-            // SAFETY: each chunk takes its own range.
-            let weights = unsafe { weights.range(range.clone()) };
-            for (w, l) in weights.iter_mut().zip(&logs[range]) {
-                *w *= exp(l - max);
-            }
-        });
+        each_chunk(
+            pool,
+            &mut self.outcome,
+            n.div_ceil(WEIGHT_CHUNK),
+            &|chunk, _| {
+                let range = chunk * WEIGHT_CHUNK..((chunk + 1) * WEIGHT_CHUNK).min(n);
+                // SAFETY: each chunk takes its own range.
+                let weights = unsafe { weights.range(range.clone()) };
+                for (w, l) in weights.iter_mut().zip(&logs[range]) {
+                    *w *= exp(l - max);
+                }
+            },
+        );
         let mut total = 0.0;
         for w in &self.weights {
             total += *w;
@@ -261,18 +334,19 @@ impl<'a> FilterMotion<'a> {
             mean[1] += w * p[1];
             squares += w * w;
         }
-        let Some(pool) = &self.pool else {
+        let Some(pool) = self.pool() else {
             let radius = lock(&self.radius[0]).radius(particles, weights, mean, 0.9);
             return (mean, radius, covariance(particles, weights, mean), squares);
         };
         // Each half sorted on its own thread, the covariance on whichever is free first.
         let half = particles.len() / 2;
         let moments = Mutex::new([[0.0; 2]; 2]);
-        pool.run(3, &|chunk, _| match chunk {
+        let outcome = pool.run(3, &|chunk, _| match chunk {
             0 => lock(&self.radius[0]).sort_by_distance(&particles[..half], &weights[..half], mean),
             1 => lock(&self.radius[1]).sort_by_distance(&particles[half..], &weights[half..], mean),
             _ => *lock(&moments) = covariance(particles, weights, mean),
         });
+        self.outcome = self.outcome.add(outcome);
         let radius = merged_radius(&lock(&self.radius[0]), &lock(&self.radius[1]), 0.9);
         let moments = moments.into_inner().unwrap_or_else(PoisonError::into_inner);
         (mean, radius, moments, squares)
@@ -304,6 +378,7 @@ impl MotionTracker for FilterMotion<'_> {
         let values: Vec<Option<f64>> = (values.into_iter().enumerate())
             .map(|(i, v)| v.filter(|_| scales[i] > 0.0))
             .collect();
+        self.start_frame();
         let prediction = self.last.map(|last| {
             let interval = (time - last).max(0.0);
             let shift = self.line.shift(interval);
@@ -339,6 +414,7 @@ impl MotionTracker for FilterMotion<'_> {
         let (pose, radius, covariance, squares) = self.estimate();
         self.line.remember(time, score.map(|_| pose), false);
         self.resample_if_degenerate(squares);
+        self.end_frame();
         Ok(PoseEstimate {
             pose: Some(pose),
             uncertainty_radius: Some(radius),
@@ -357,79 +433,5 @@ impl MotionTracker for FilterMotion<'_> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::estimator::test_maps::{feature_row, fitted_continuous};
-    use crate::estimator::{ParticleSettings, TemporalSettings};
-
-    /// Every output of every frame, as bits.
-    fn bits(estimate: &PoseEstimate) -> Vec<u64> {
-        let pose = estimate.pose.unwrap_or([f64::NAN; 2]);
-        let c = estimate.covariance.unwrap_or([[f64::NAN; 2]; 2]);
-        let mut bits: Vec<u64> = [pose[0], pose[1], c[0][0], c[0][1], c[1][1]]
-            .iter()
-            .chain([
-                &estimate.uncertainty_radius.unwrap_or(f64::NAN),
-                &estimate.detection_score.unwrap_or(f64::NAN),
-            ])
-            .map(|v| v.to_bits())
-            .collect();
-        bits.push(u64::from(estimate.flags.predicted));
-        bits
-    }
-
-    #[test]
-    fn two_threads_give_every_bit_of_one_over_a_struck_motion() {
-        use rand::SeedableRng;
-        let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
-        let mut rng = ChaCha8Rng::seed_from_u64(5);
-        // A Lissajous path with struck frames: wild features, features and whole frames lost,
-        // and a jump the line does not predict.
-        let frames: Vec<(f64, Vec<Option<f64>>)> = (0..60)
-            .map(|k| {
-                let t = k as f64 / 20.0;
-                let jump = if k >= 40 { 6.0 } else { 0.0 };
-                let q = [7.0 * (1.9 * t).sin() + jump, 47.5 + 7.0 * (1.3 * t).sin()];
-                let mut row = feature_row(6, q, 0.01, &mut rng);
-                match k % 9 {
-                    3 => row[1] = Some(40.0),
-                    5 => row[2] = None,
-                    7 if k > 20 => row.iter_mut().for_each(|v| *v = None),
-                    8 => row[4] = row[4].map(|v| -v),
-                    _ => {}
-                }
-                (t, row)
-            })
-            .collect();
-        // Blocks of 256: 11 whole and one of 172, so the halves of the sort differ in their
-        // blocks; several particle counts, the last below a block.
-        for (particles, share) in [(3_000, 0.5), (1_001, 0.9), (200, 0.0)] {
-            let settings = ParticleSettings {
-                particles,
-                velocity_share: share,
-                outlier_share: Some(0.02),
-                motion_noise: Some(30.0),
-                ..ParticleSettings::default()
-            };
-            let filter =
-                ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps.clone(), 4)
-                    .unwrap();
-            let mut one = FilterMotion::with_threads(&filter, false);
-            let mut two = FilterMotion::with_threads(&filter, true);
-            assert!(one.pool.is_none());
-            let predicted = (frames.iter())
-                .map(|(t, row)| {
-                    let (a, b) = (one.next(*t, row).unwrap(), two.next(*t, row).unwrap());
-                    assert_eq!(bits(&a), bits(&b), "{particles} particles at {t}");
-                    a.flags.predicted
-                })
-                .filter(|&p| p)
-                .count();
-            // The frames without features are predictions; the others are weighed.
-            assert!((4..20).contains(&predicted), "{predicted}");
-            let weights = |m: &FilterMotion| m.weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>();
-            assert_eq!(weights(&one), weights(&two));
-            assert_eq!(one.particles, two.particles);
-        }
-    }
-}
+#[path = "motion_tests.rs"]
+mod tests;

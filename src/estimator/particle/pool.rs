@@ -23,10 +23,10 @@ const TAKEN: u8 = 2;
 const DONE: u8 = 3;
 const EXIT: u8 = 4;
 
-/// How long the worker spins for the next job before sleeping: a frame's jobs follow each other
-/// within a few hundred microseconds (the draws come between frames), and a sleeping worker
-/// wakes only after the caller has done part of the next job alone.
-const SPIN: Duration = Duration::from_micros(300);
+/// How long the worker spins for the next job before sleeping (a frame's jobs follow each other
+/// within tens of microseconds; a sleeping worker joins a job late, never delays it), and how
+/// long the caller spins for a worker inside a chunk before yielding its core to it.
+const SPIN: Duration = Duration::from_micros(60);
 
 /// A job's work, its lifetime erased: only dereferenced between the worker's taking it and its
 /// `DONE`, while [`Pool::run`] (which holds the borrow) waits.
@@ -77,8 +77,8 @@ impl Pool {
     }
 
     /// Runs `work(chunk, thread)` once for every chunk in `0..chunks`, on this thread (0) and
-    /// the worker (1), and returns when all have run.
-    pub(super) fn run(&self, chunks: usize, work: &(dyn Fn(usize, usize) + Sync)) {
+    /// the worker (1), and returns when all have run, with how the work went.
+    pub(super) fn run(&self, chunks: usize, work: &(dyn Fn(usize, usize) + Sync)) -> Outcome {
         let shared = &*self.shared;
         // SAFETY: only the lifetime changes; the worker dereferences the pointer only between
         // taking the job and `DONE`, and this function does not return (nor unwind, `Wait`)
@@ -97,10 +97,40 @@ impl Pool {
             worker.thread().unpark();
         }
         let wait = Wait(shared);
-        claim(shared, chunks, |chunk| work(chunk, 0));
+        let mut own = 0;
+        claim(shared, chunks, |chunk| {
+            work(chunk, 0);
+            own += 1;
+        });
+        let done = Instant::now();
         drop(wait);
         if shared.panicked.swap(false, Ordering::Relaxed) {
             panic!("the particle filter's worker thread panicked");
+        }
+        Outcome {
+            own,
+            chunks,
+            waited: done.elapsed(),
+        }
+    }
+}
+
+/// How a job went: the chunks the caller ran itself, of all, and how long it waited for the
+/// worker's last chunk.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Outcome {
+    pub(super) own: usize,
+    pub(super) chunks: usize,
+    pub(super) waited: Duration,
+}
+
+impl Outcome {
+    /// Both jobs' counts and waits.
+    pub(super) fn add(self, other: Self) -> Self {
+        Self {
+            own: self.own + other.own,
+            chunks: self.chunks + other.chunks,
+            waited: self.waited + other.waited,
         }
     }
 }
@@ -230,11 +260,25 @@ mod tests {
                     runs[chunk].fetch_add(1, Ordering::Relaxed);
                     threads[thread].fetch_add(1, Ordering::Relaxed);
                 });
-                assert!(runs.iter().all(|r| r.load(Ordering::Relaxed) == 1), "{chunks}");
+                assert!(
+                    runs.iter().all(|r| r.load(Ordering::Relaxed) == 1),
+                    "{chunks}"
+                );
                 let total: usize = threads.iter().map(|t| t.load(Ordering::Relaxed)).sum();
                 assert_eq!(total, chunks);
             }
         }
+        // Chunks long enough for the worker to wake: it takes a share of some job.
+        let theirs = AtomicUsize::new(0);
+        for _ in 0..50 {
+            let outcome = pool.run(100, &|_, thread| {
+                std::thread::sleep(Duration::from_micros(20));
+                theirs.fetch_add(thread, Ordering::Relaxed);
+            });
+            assert_eq!(outcome.chunks, 100);
+            assert!(outcome.own <= 100);
+        }
+        assert!(theirs.load(Ordering::Relaxed) > 0);
     }
 
     #[test]

@@ -182,7 +182,11 @@ mod tests {
                 first.sort_by_distance(&particles[..cut], &weights[..cut], centre);
                 second.sort_by_distance(&particles[cut..], &weights[cut..], centre);
                 let merged = merged_radius(&first, &second, 0.9);
-                assert_eq!(merged.to_bits(), expected.to_bits(), "case {case} cut {cut}");
+                assert_eq!(
+                    merged.to_bits(),
+                    expected.to_bits(),
+                    "case {case} cut {cut}"
+                );
             }
         }
         assert_eq!(radius.radius(&[], &[], [0.0; 2], 0.9), 0.0);
