@@ -116,6 +116,8 @@ fn check_motion_noise(sigma: f64) -> Result<(), String> {
 pub struct ParticleFilter {
     maps: Continuous,
     file: ParticleFile,
+    /// The worker thread of the last motion on two threads, kept for the next one.
+    workers: pool::Spare,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -196,7 +198,11 @@ impl ParticleFilter {
             seed: crate::seed::derive(seed, &format!("particle_filter/{}", settings.seed)),
             feature_maps: maps.to_json()?,
         };
-        Ok(Self { maps, file })
+        Ok(Self {
+            maps,
+            file,
+            workers: pool::Spare::default(),
+        })
     }
 
     /// σ of the Gaussian step (mm/s), and whether it was learned.
@@ -235,7 +241,11 @@ impl ParticleFilter {
             }
             other => other,
         })?;
-        Ok(Self { maps, file })
+        Ok(Self {
+            maps,
+            file,
+            workers: pool::Spare::default(),
+        })
     }
 
     /// Reads a model file.
@@ -320,7 +330,11 @@ impl PoseEstimator for ParticleFilter {
         let maps = self.maps.reprovenanced(provenance);
         let mut file = self.file.clone();
         file.feature_maps = maps.to_json().ok()?;
-        Some(Box::new(Self { maps, file }))
+        Some(Box::new(Self {
+            maps,
+            file,
+            workers: pool::Spare::default(),
+        }))
     }
 }
 

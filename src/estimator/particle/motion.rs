@@ -163,7 +163,7 @@ impl<'a> FilterMotion<'a> {
             scratch: Default::default(),
             radius: [radius(), radius()],
             resampled: Vec::with_capacity(n),
-            pool: two.then(Pool::new).flatten(),
+            pool: two.then(|| filter.workers.take()).flatten(),
             threads: false,
             adaptive: false,
             serial_frames: 0,
@@ -350,6 +350,15 @@ impl<'a> FilterMotion<'a> {
         let radius = merged_radius(&lock(&self.radius[0]), &lock(&self.radius[1]), 0.9);
         let moments = moments.into_inner().unwrap_or_else(PoisonError::into_inner);
         (mean, radius, moments, squares)
+    }
+}
+
+impl Drop for FilterMotion<'_> {
+    /// Hands the worker back to the filter for its next motion.
+    fn drop(&mut self) {
+        if let Some(pool) = self.pool.take() {
+            self.filter.workers.keep(pool);
+        }
     }
 }
 

@@ -115,6 +115,39 @@ impl Pool {
     }
 }
 
+/// A pool kept between motions (starting a thread per motion costs a wake-up and a join on a
+/// loaded machine); a clone starts without one.
+#[derive(Default)]
+pub(super) struct Spare(Mutex<Option<Pool>>);
+
+impl Spare {
+    /// The kept pool, else a new one.
+    pub(super) fn take(&self) -> Option<Pool> {
+        let kept = self.0.lock().unwrap_or_else(PoisonError::into_inner).take();
+        kept.or_else(Pool::new)
+    }
+
+    /// Keeps `pool` for the next motion (one pool at most).
+    pub(super) fn keep(&self, pool: Pool) {
+        let mut slot = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        if slot.is_none() {
+            *slot = Some(pool);
+        }
+    }
+}
+
+impl Clone for Spare {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl std::fmt::Debug for Spare {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Spare")
+    }
+}
+
 /// How a job went: the chunks the caller ran itself, of all, and how long it waited for the
 /// worker's last chunk.
 #[derive(Debug, Clone, Copy, Default)]
