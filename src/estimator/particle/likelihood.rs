@@ -16,13 +16,14 @@
 
 use crate::estimator::Continuous;
 
-/// Particles weighed together: a block's maps (features × `BLOCK`) stay in the L1/L2 cache.
-const BLOCK: usize = 256;
+/// Particles weighed together: a block's maps (features × `BLOCK`) stay in the L1/L2 cache;
+/// also the filter's chunk of work for its two threads (`motion`).
+pub(super) const BLOCK: usize = 256;
 /// Below this, e^x rounds to 0 (under half the least subnormal, e^−745.13).
 const EXP_ZERO_BELOW: f64 = -746.0;
 
-/// The frame's usable features and their constants, and a block's maps; kept between frames
-/// so that a frame allocates nothing.
+/// The frame's usable features and their constants; kept between frames so that a frame
+/// allocates nothing.
 #[derive(Default)]
 pub(super) struct FrameLikelihood {
     /// Per usable feature: index, measured value, σ, σ·√(2π), ε/W, ln max(ε/W, MIN_POSITIVE)
@@ -35,10 +36,14 @@ pub(super) struct FrameLikelihood {
     floor_log: Vec<f64>,
     floor_below: Vec<f64>,
     keep: f64,
-    /// A block's maps, feature-major.
+}
+
+/// One thread's scratch for a block, kept between frames: the block's maps (feature-major),
+/// one feature's exponents −z²/2 over the block, and the particles (indices in the block) whose
+/// term is above its floor.
+#[derive(Default)]
+pub(super) struct BlockScratch {
     mapped: Vec<f64>,
-    /// One feature's exponents −z²/2 over a block, and the particles (indices in the block)
-    /// whose term is above its floor.
     exponents: Vec<f64>,
     above: Vec<u32>,
 }
@@ -85,47 +90,60 @@ impl FrameLikelihood {
         }
     }
 
-    /// log p(frame | q) at each of `particles` into `logs` (cleared first).
+    /// log p(frame | q) at each of `particles` into `logs` (cleared first), block by block.
+    #[cfg(test)]
     pub(super) fn log_likelihoods(
-        &mut self,
+        &self,
         maps: &Continuous,
         particles: &[[f64; 2]],
+        scratch: &mut BlockScratch,
         logs: &mut Vec<f64>,
     ) {
-        let dim = maps.residual_scales().len();
         logs.clear();
-        self.mapped.resize(dim * BLOCK, 0.0);
-        self.exponents.resize(BLOCK, 0.0);
-        self.above.resize(BLOCK, 0);
+        logs.resize(particles.len(), 0.0);
+        for (block, logs) in particles.chunks(BLOCK).zip(logs.chunks_mut(BLOCK)) {
+            self.block(maps, block, scratch, logs);
+        }
+    }
+
+    /// log p(frame | q) at each of at most `BLOCK` `particles` into `logs` (as long).
+    pub(super) fn block(
+        &self,
+        maps: &Continuous,
+        particles: &[[f64; 2]],
+        scratch: &mut BlockScratch,
+        logs: &mut [f64],
+    ) {
+        let dim = maps.residual_scales().len();
+        let m = particles.len();
+        debug_assert!(m <= BLOCK && logs.len() == m);
+        scratch.mapped.resize(dim * BLOCK, 0.0);
+        scratch.exponents.resize(BLOCK, 0.0);
+        scratch.above.resize(BLOCK, 0);
+        logs.fill(0.0);
         let keep = self.keep;
-        for block in particles.chunks(BLOCK) {
-            let m = block.len();
-            maps.feature_maps_block(block, &mut self.mapped[..dim * m]);
-            let start = logs.len();
-            logs.resize(start + m, 0.0);
-            let logs = &mut logs[start..];
-            for (j, &i) in self.index.iter().enumerate() {
-                let (norm, floor, below) = (self.norm[j], self.floor[j], self.floor_below[j]);
-                let term = Term {
-                    value: self.value[j],
-                    sigma: self.sigma[j],
-                    floor_log: self.floor_log[j],
-                    below,
-                };
-                let exponents = &mut self.exponents[..m];
-                exponents_and_floors(&term, &self.mapped[i * m..(i + 1) * m], exponents, logs);
-                // Branch-free listing of the terms above their floor (not below it: a NaN
-                // exponent takes the formula's path, as in `exponents_and_floors_in`).
-                let mut count = 0;
-                for (p, &x) in exponents.iter().enumerate() {
-                    self.above[count] = p as u32;
-                    count += usize::from(x.partial_cmp(&below) != Some(std::cmp::Ordering::Less));
-                }
-                for &p in &self.above[..count] {
-                    let p = p as usize;
-                    let gaussian = exponents[p].exp() / norm;
-                    logs[p] += (keep * gaussian + floor).max(f64::MIN_POSITIVE).ln();
-                }
+        maps.feature_maps_block(particles, &mut scratch.mapped[..dim * m]);
+        for (j, &i) in self.index.iter().enumerate() {
+            let (norm, floor, below) = (self.norm[j], self.floor[j], self.floor_below[j]);
+            let term = Term {
+                value: self.value[j],
+                sigma: self.sigma[j],
+                floor_log: self.floor_log[j],
+                below,
+            };
+            let exponents = &mut scratch.exponents[..m];
+            exponents_and_floors(&term, &scratch.mapped[i * m..(i + 1) * m], exponents, logs);
+            // Branch-free listing of the terms above their floor (not below it: a NaN
+            // exponent takes the formula's path, as in `exponents_and_floors_in`).
+            let mut count = 0;
+            for (p, &x) in exponents.iter().enumerate() {
+                scratch.above[count] = p as u32;
+                count += usize::from(x.partial_cmp(&below) != Some(std::cmp::Ordering::Less));
+            }
+            for &p in &scratch.above[..count] {
+                let p = p as usize;
+                let gaussian = exponents[p].exp() / norm;
+                logs[p] += (keep * gaussian + floor).max(f64::MIN_POSITIVE).ln();
             }
         }
     }

@@ -1,16 +1,37 @@
 //! One motion under the particle filter: predict (the line's shift for a share of the
 //! particles, then a Gaussian step), weigh by the frame's likelihood, resample when degenerate.
+//! From `PARALLEL_FROM` particles the per-particle work (moves, likelihood, weights, the
+//! radius's sort by halves) runs on two threads ([`Pool`]); the random draws and every sum stay
+//! on the caller, in the serial order, so the bits do not depend on the threads.
+
+use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
-use super::likelihood::{exp, FrameLikelihood};
-use super::radius::WeightedRadius;
+use super::likelihood::{exp, BlockScratch, FrameLikelihood, BLOCK};
+use super::pool::{Disjoint, Outcome, Pool};
+use super::radius::{merged_radius, WeightedRadius};
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::VelocityLine;
 use crate::estimator::{EstimateFlags, EstimatorError, MotionTracker, PoseEstimate, PoseEstimator};
+
+/// From this many particles a motion weighs its particles on two threads (`pool`): below it,
+/// handing chunks to a second thread costs more than it saves (measured in docs/results.md,
+/// "Benchmarks").
+const PARALLEL_FROM: usize = 5_000;
+/// A frame in which the caller waited this long for the worker, or ran more than
+/// `ALONE_SHARE` of the chunks itself, finds the second core busy (a loaded machine): the
+/// next frames run on one thread, `BACKOFF_FROM` of them, doubling while it lasts, at most
+/// `BACKOFF_TO`. The results are the same bits either way.
+const WAITED_AT_MOST: std::time::Duration = std::time::Duration::from_micros(150);
+const ALONE_SHARE: f64 = 0.8;
+const BACKOFF_FROM: u32 = 8;
+const BACKOFF_TO: u32 = 512;
+/// Particles per chunk of the weights' update (exponentials only: larger than a block).
+const WEIGHT_CHUNK: usize = 4 * BLOCK;
 
 /// One motion under the particle filter.
 pub(super) struct FilterMotion<'a> {
@@ -26,16 +47,93 @@ pub(super) struct FilterMotion<'a> {
     norms: Vec<f64>,
     uniforms: Vec<f64>,
     /// Scratch kept between frames, so that a frame allocates nothing per particle: the
-    /// frame's likelihood terms and its blocks' maps, each particle's log-likelihood, the radius's sort and the resampled particles.
+    /// frame's likelihood terms, each particle's random draw and log-likelihood, each block's
+    /// largest log-likelihood, each thread's block maps and distance sort (the second sort
+    /// holds the later half of the particles on two threads), and the resampled particles.
     likelihood: FrameLikelihood,
+    draws: Vec<Draw>,
     logs: Vec<f64>,
-    radius: WeightedRadius,
+    maxes: Vec<f64>,
+    scratch: [Mutex<BlockScratch>; 2],
+    radius: [Mutex<WeightedRadius>; 2],
     resampled: Vec<[f64; 2]>,
+    /// The second thread, from `PARALLEL_FROM` particles; whether it is used this frame, and
+    /// whether it goes unused after frames that found it slow (`adaptive`): for so many more
+    /// frames (`serial_frames`), the last such pause (`backoff`), and the frame's jobs so far.
+    pool: Option<Pool>,
+    threads: bool,
+    adaptive: bool,
+    serial_frames: u32,
+    backoff: u32,
+    outcome: Outcome,
+}
+
+/// One particle's random draw for the prediction: its Gaussian step (in σ) along the line, or
+/// the uniform numbers of its point in the disc of the reach.
+#[derive(Clone, Copy)]
+enum Draw {
+    Line([f64; 2]),
+    Disc([f64; 2]),
+}
+
+/// The frame's prediction: the Gaussian step's spread (mm), the disc's radius (mm), the line's
+/// shift, and the box the particles stay in.
+struct Prediction {
+    step: f64,
+    reach: f64,
+    shift: [f64; 2],
+    bounds: ([f64; 2], [f64; 2]),
+}
+
+impl Prediction {
+    /// Moves `p` by its draw: along the line with the Gaussian step, or to a uniform point of
+    /// the disc (radius ∝ √u), then into the box.
+    fn apply(&self, p: [f64; 2], draw: Draw) -> [f64; 2] {
+        let (lo, hi) = self.bounds;
+        let moved = match draw {
+            Draw::Line([dx, dy]) => [
+                p[0] + self.shift[0] + self.step * dx,
+                p[1] + self.shift[1] + self.step * dy,
+            ],
+            Draw::Disc([u, v]) => {
+                let r = self.reach * u.sqrt();
+                let angle = std::f64::consts::TAU * v;
+                [p[0] + r * angle.cos(), p[1] + r * angle.sin()]
+            }
+        };
+        [moved[0].clamp(lo[0], hi[0]), moved[1].clamp(lo[1], hi[1])]
+    }
+}
+
+/// Runs `work(chunk, thread)` for each of `chunks`, on both threads where there is a pool,
+/// adding how it went to `outcome`.
+fn each_chunk(
+    pool: Option<&Pool>,
+    outcome: &mut Outcome,
+    chunks: usize,
+    work: &(dyn Fn(usize, usize) + Sync),
+) {
+    match pool {
+        Some(pool) => *outcome = outcome.add(pool.run(chunks, work)),
+        None => (0..chunks).for_each(|chunk| work(chunk, 0)),
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 impl<'a> FilterMotion<'a> {
     /// Particles spread uniformly over the sample poses' bounding box, from the model's seed.
     pub(super) fn new(filter: &'a ParticleFilter) -> Self {
+        let n = filter.file.settings.particles;
+        let mut motion = Self::with_threads(filter, n >= PARALLEL_FROM);
+        motion.adaptive = true;
+        motion
+    }
+
+    /// As [`FilterMotion::new`], on two threads in every frame or on one.
+    pub(super) fn with_threads(filter: &'a ParticleFilter, two: bool) -> Self {
         let (lo, hi) = filter.maps.sample_bounds();
         let mut rng = ChaCha8Rng::seed_from_u64(filter.file.seed);
         let n = filter.file.settings.particles;
@@ -48,6 +146,7 @@ impl<'a> FilterMotion<'a> {
             })
             .collect();
         let (norms, uniforms) = filter.likelihood_constants();
+        let radius = || Mutex::new(WeightedRadius::with_capacity(n));
         Self {
             filter,
             rng,
@@ -58,53 +157,138 @@ impl<'a> FilterMotion<'a> {
             likelihood: FrameLikelihood::default(),
             norms,
             uniforms,
-            logs: Vec::with_capacity(n),
-            radius: WeightedRadius::with_capacity(n),
+            draws: Vec::with_capacity(n),
+            logs: vec![0.0; n],
+            maxes: vec![f64::NEG_INFINITY; n.div_ceil(BLOCK)],
+            scratch: Default::default(),
+            radius: [radius(), radius()],
             resampled: Vec::with_capacity(n),
+            pool: two.then(|| filter.workers.take()).flatten(),
+            threads: false,
+            adaptive: false,
+            serial_frames: 0,
+            backoff: 0,
+            outcome: Outcome::default(),
         }
     }
 
-    /// Moves the share `velocity_share` of the particles by `shift` and a Gaussian step of
-    /// spread `step` (mm) per axis, and the others to a uniform point of the disc of radius
-    /// `reach` (mm): the line's share is precise, the others keep the filter from losing a pose
-    /// that leaves the line.
-    fn predict(&mut self, step: f64, reach: f64, shift: [f64; 2]) {
-        let (lo, hi) = self.filter.maps.sample_bounds();
+    /// The pool if this frame uses it.
+    fn pool(&self) -> Option<&Pool> {
+        self.pool.as_ref().filter(|_| self.threads)
+    }
+
+    /// Decides whether this frame runs on two threads.
+    fn start_frame(&mut self) {
+        self.outcome = Outcome::default();
+        self.threads = self.pool.is_some() && self.serial_frames == 0;
+        self.serial_frames = self.serial_frames.saturating_sub(1);
+    }
+
+    /// After a frame on two threads: pauses the worker when it did not keep up.
+    fn end_frame(&mut self) {
+        let Outcome {
+            own,
+            chunks,
+            waited,
+        } = self.outcome;
+        if !(self.threads && self.adaptive) {
+            return;
+        }
+        if waited > WAITED_AT_MOST || own as f64 > ALONE_SHARE * chunks as f64 {
+            self.backoff = (2 * self.backoff).clamp(BACKOFF_FROM, BACKOFF_TO);
+            self.serial_frames = self.backoff;
+        } else {
+            self.backoff = 0;
+        }
+    }
+
+    /// Each particle's draw, in the order of the serial filter: the share `velocity_share` of
+    /// the particles takes the line and a Gaussian step, the others a point of the disc (the
+    /// line's share is precise, the others keep the filter from losing a pose that leaves the
+    /// line). Drawn here, on one thread, so the random stream does not depend on the threads.
+    fn draw(&mut self) {
         let share = self.filter.file.settings.velocity_share;
-        for p in &mut self.particles {
-            let moved = if self.rng.random::<f64>() < share {
+        self.draws.clear();
+        for _ in 0..self.particles.len() {
+            let draw = if self.rng.random::<f64>() < share {
                 let dx: f64 = self.rng.sample(StandardNormal);
                 let dy: f64 = self.rng.sample(StandardNormal);
-                [p[0] + shift[0] + step * dx, p[1] + shift[1] + step * dy]
+                Draw::Line([dx, dy])
             } else {
-                // Uniform in the disc: radius ∝ √u.
-                let r = reach * self.rng.random::<f64>().sqrt();
-                let angle = std::f64::consts::TAU * self.rng.random::<f64>();
-                [p[0] + r * angle.cos(), p[1] + r * angle.sin()]
+                let u = self.rng.random::<f64>();
+                Draw::Disc([u, self.rng.random::<f64>()])
             };
-            p[0] = moved[0].clamp(lo[0], hi[0]);
-            p[1] = moved[1].clamp(lo[1], hi[1]);
+            self.draws.push(draw);
         }
     }
 
-    /// Weights by the frame's likelihood; −ln of the predictive likelihood (the detection
-    /// score), or `None` when every particle's likelihood underflows (the weights then stay).
-    fn update(&mut self, values: &[Option<f64>]) -> Option<f64> {
+    /// Moves the particles by their draws (with `prediction`), and with `weigh` takes each
+    /// particle's log-likelihood of the frame (`likelihood`, prepared) and each block's largest.
+    fn move_and_weigh(&mut self, prediction: Option<&Prediction>, weigh: bool) {
         let maps = &self.filter.maps;
-        self.likelihood.prepare(
-            values,
-            maps.residual_scales(),
-            (&self.norms, &self.uniforms),
-            self.filter.file.outlier_share,
+        let n = self.particles.len();
+        let (particles, logs) = (
+            Disjoint::new(&mut self.particles),
+            Disjoint::new(&mut self.logs),
         );
-        (self.likelihood).log_likelihoods(maps, &self.particles, &mut self.logs);
-        let max = self.logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let maxes = Disjoint::new(&mut self.maxes);
+        let (draws, likelihood, scratch) = (&self.draws, &self.likelihood, &self.scratch);
+        let pool = self.pool.as_ref().filter(|_| self.threads);
+        each_chunk(
+            pool,
+            &mut self.outcome,
+            n.div_ceil(BLOCK),
+            &|chunk, thread| {
+                let range = chunk * BLOCK..((chunk + 1) * BLOCK).min(n);
+                // SAFETY: each chunk takes its own range of each slice.
+                let (particles, logs, max) = unsafe {
+                    (
+                        particles.range(range.clone()),
+                        logs.range(range.clone()),
+                        maxes.range(chunk..chunk + 1),
+                    )
+                };
+                if let Some(prediction) = prediction {
+                    for (p, &draw) in particles.iter_mut().zip(&draws[range]) {
+                        *p = prediction.apply(*p, draw);
+                    }
+                }
+                if weigh {
+                    likelihood.block(maps, particles, &mut lock(&scratch[thread]), logs);
+                    max[0] = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                }
+            },
+        );
+    }
+
+    /// Weights by the frame's likelihood (`logs`, with `maxes`); −ln of the predictive
+    /// likelihood (the detection score), or `None` when every particle's likelihood underflows
+    /// (the weights then stay).
+    fn update(&mut self) -> Option<f64> {
+        // The largest of the blocks' largest: the largest, whatever the grouping (no −0 in a
+        // sum from +0, and `max` passes over NaN).
+        let max = self.maxes.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         if !max.is_finite() {
             return None;
         }
+        let n = self.weights.len();
+        let pool = self.pool.as_ref().filter(|_| self.threads);
+        let (weights, logs) = (Disjoint::new(&mut self.weights), &self.logs);
+        each_chunk(
+            pool,
+            &mut self.outcome,
+            n.div_ceil(WEIGHT_CHUNK),
+            &|chunk, _| {
+                let range = chunk * WEIGHT_CHUNK..((chunk + 1) * WEIGHT_CHUNK).min(n);
+                // SAFETY: each chunk takes its own range.
+                let weights = unsafe { weights.range(range.clone()) };
+                for (w, l) in weights.iter_mut().zip(&logs[range]) {
+                    *w *= exp(l - max);
+                }
+            },
+        );
         let mut total = 0.0;
-        for (w, l) in self.weights.iter_mut().zip(&self.logs) {
-            *w *= exp(l - max);
+        for w in &self.weights {
             total += *w;
         }
         if !(total > 0.0 && total.is_finite()) {
@@ -114,9 +298,11 @@ impl<'a> FilterMotion<'a> {
         Some(-(total.ln() + max))
     }
 
-    fn resample_if_degenerate(&mut self) {
+    /// Resamples when the effective sample size 1/`squares` (the sum of the squared weights)
+    /// is below half the particles.
+    fn resample_if_degenerate(&mut self, squares: f64) {
         let n = self.particles.len();
-        let ess = 1.0 / self.weights.iter().map(|w| w * w).sum::<f64>();
+        let ess = 1.0 / squares;
         if ess >= 0.5 * n as f64 {
             return;
         }
@@ -137,29 +323,56 @@ impl<'a> FilterMotion<'a> {
         self.weights.fill(step);
     }
 
-    /// Weighted mean and the radius holding 90 % of the weight.
-    fn estimate(&mut self) -> ([f64; 2], f64) {
-        let mut mean = [0.0; 2];
-        for (p, w) in self.particles.iter().zip(&self.weights) {
+    /// Weighted mean, the radius holding 90 % of the weight, the weighted second moments about
+    /// the mean (mm²), and the sum of the squared weights.
+    fn estimate(&mut self) -> ([f64; 2], f64, [[f64; 2]; 2], f64) {
+        let (particles, weights) = (&self.particles, &self.weights);
+        // One pass for the mean and the squares: separate sums, each in the particles' order.
+        let (mut mean, mut squares) = ([0.0; 2], 0.0);
+        for (p, w) in particles.iter().zip(weights) {
             mean[0] += w * p[0];
             mean[1] += w * p[1];
+            squares += w * w;
         }
-        let radius = (self.radius).radius(&self.particles, &self.weights, mean, 0.9);
-        (mean, radius)
+        let Some(pool) = self.pool() else {
+            let radius = lock(&self.radius[0]).radius(particles, weights, mean, 0.9);
+            return (mean, radius, covariance(particles, weights, mean), squares);
+        };
+        // Each half sorted on its own thread, the covariance on whichever is free first.
+        let half = particles.len() / 2;
+        let moments = Mutex::new([[0.0; 2]; 2]);
+        let outcome = pool.run(3, &|chunk, _| match chunk {
+            0 => lock(&self.radius[0]).sort_by_distance(&particles[..half], &weights[..half], mean),
+            1 => lock(&self.radius[1]).sort_by_distance(&particles[half..], &weights[half..], mean),
+            _ => *lock(&moments) = covariance(particles, weights, mean),
+        });
+        self.outcome = self.outcome.add(outcome);
+        let radius = merged_radius(&lock(&self.radius[0]), &lock(&self.radius[1]), 0.9);
+        let moments = moments.into_inner().unwrap_or_else(PoisonError::into_inner);
+        (mean, radius, moments, squares)
     }
+}
 
-    /// The particles' weighted second moments about `mean` (mm²).
-    fn covariance(&self, mean: [f64; 2]) -> [[f64; 2]; 2] {
-        let mut moments = [[0.0; 2]; 2];
-        for (p, w) in self.particles.iter().zip(&self.weights) {
-            let d = [p[0] - mean[0], p[1] - mean[1]];
-            moments[0][0] += w * d[0] * d[0];
-            moments[0][1] += w * d[0] * d[1];
-            moments[1][1] += w * d[1] * d[1];
+impl Drop for FilterMotion<'_> {
+    /// Hands the worker back to the filter for its next motion.
+    fn drop(&mut self) {
+        if let Some(pool) = self.pool.take() {
+            self.filter.workers.keep(pool);
         }
-        moments[1][0] = moments[0][1];
-        moments
     }
+}
+
+/// The particles' weighted second moments about `mean` (mm²).
+fn covariance(particles: &[[f64; 2]], weights: &[f64], mean: [f64; 2]) -> [[f64; 2]; 2] {
+    let mut moments = [[0.0; 2]; 2];
+    for (p, w) in particles.iter().zip(weights) {
+        let d = [p[0] - mean[0], p[1] - mean[1]];
+        moments[0][0] += w * d[0] * d[0];
+        moments[0][1] += w * d[0] * d[1];
+        moments[1][1] += w * d[1] * d[1];
+    }
+    moments[1][0] = moments[0][1];
+    moments
 }
 
 impl MotionTracker for FilterMotion<'_> {
@@ -174,7 +387,8 @@ impl MotionTracker for FilterMotion<'_> {
         let values: Vec<Option<f64>> = (values.into_iter().enumerate())
             .map(|(i, v)| v.filter(|_| scales[i] > 0.0))
             .collect();
-        if let Some(last) = self.last {
+        self.start_frame();
+        let prediction = self.last.map(|last| {
             let interval = (time - last).max(0.0);
             let shift = self.line.shift(interval);
             let mut noise = self.filter.file.motion_noise;
@@ -182,19 +396,34 @@ impl MotionTracker for FilterMotion<'_> {
                 // No line yet: the velocity is unknown within the reach.
                 noise = noise.max(0.5 * self.filter.file.max_speed);
             }
-            self.predict(
-                noise * interval,
-                self.filter.file.max_speed * interval,
+            Prediction {
+                step: noise * interval,
+                reach: self.filter.file.max_speed * interval,
                 shift,
-            );
+                bounds: self.filter.maps.sample_bounds(),
+            }
+        });
+        if prediction.is_some() {
+            self.draw();
         }
         self.last = Some(time);
         let usable = values.iter().any(Option::is_some);
-        let score = if usable { self.update(&values) } else { None };
-        let (pose, radius) = self.estimate();
-        let covariance = self.covariance(pose);
+        if usable {
+            self.likelihood.prepare(
+                &values,
+                scales,
+                (&self.norms, &self.uniforms),
+                self.filter.file.outlier_share,
+            );
+        }
+        if usable || prediction.is_some() {
+            self.move_and_weigh(prediction.as_ref(), usable);
+        }
+        let score = if usable { self.update() } else { None };
+        let (pose, radius, covariance, squares) = self.estimate();
         self.line.remember(time, score.map(|_| pose), false);
-        self.resample_if_degenerate();
+        self.resample_if_degenerate(squares);
+        self.end_frame();
         Ok(PoseEstimate {
             pose: Some(pose),
             uncertainty_radius: Some(radius),
@@ -211,3 +440,7 @@ impl MotionTracker for FilterMotion<'_> {
         })
     }
 }
+
+#[cfg(test)]
+#[path = "motion_tests.rs"]
+mod tests;
