@@ -90,24 +90,24 @@ fn the_blocked_inverse_matches_solving_against_the_identity() {
     }
 }
 
-/// The previous `upper_inverse`, column by column (four at a time), kept as the reference the
-/// tiled one must match bit for bit. The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
-/// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
-/// time so that each loaded value serves four sums (several times faster than solving against
-/// the identity).
+/// The Cholesky factor of B Bᵀ + I/2, B from a fixed pseudo-random stream: positive definite,
+/// no structure.
+fn random_positive_definite(n: usize, seed: u64) -> Cholesky<f64, nalgebra::Dyn> {
+    let mut state = seed;
+    let b = DMatrix::from_fn(n, n, |_, _| {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    });
+    let k = &b * b.transpose() + DMatrix::identity(n, n) * 0.5;
+    Cholesky::new(k).unwrap()
+}
+
 #[test]
 fn the_tiled_inverse_matches_the_column_version_bit_for_bit() {
     for n in [1, 2, 3, 4, 5, 6, 7, 8, 9, 13, 33, 64, 101, 150] {
-        // B Bᵀ + I/2 from a fixed pseudo-random B: positive definite, no structure.
-        let mut state: u64 = n as u64;
-        let b = DMatrix::from_fn(n, n, |_, _| {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        });
-        let k = &b * b.transpose() + DMatrix::identity(n, n) * 0.5;
-        let chol = Cholesky::new(k).unwrap();
+        let chol = random_positive_definite(n, n as u64);
         let ours = upper_inverse(chol.l_dirty());
         let reference = reference_inverse(chol.l_dirty());
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
@@ -115,6 +115,11 @@ fn the_tiled_inverse_matches_the_column_version_bit_for_bit() {
     }
 }
 
+/// The previous `upper_inverse`, column by column (four at a time), kept as the reference the
+/// tiled one must match bit for bit. The upper triangle (i ≤ j, column-major, at `i + j·n`) of K⁻¹ = L⁻ᵀL⁻¹ from the lower
+/// Cholesky factor (column-major, upper part ignored): n³/3 multiply-adds, four columns at a
+/// time so that each loaded value serves four sums (several times faster than solving against
+/// the identity).
 fn reference_inverse(l: &DMatrix<f64>) -> Vec<f64> {
     let n = l.nrows();
     let l = l.as_slice();
@@ -196,15 +201,7 @@ fn the_inverse_into_stale_buffers_gives_the_same_upper_triangle() {
     let mut out = Vec::new();
     // Larger, smaller, then larger again: every buffer holds another matrix's values.
     for (n, seed) in [(37, 1u64), (13, 2), (9, 3), (41, 4)] {
-        let mut state = seed;
-        let b = DMatrix::from_fn(n, n, |_, _| {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        });
-        let k = &b * b.transpose() + DMatrix::identity(n, n) * 0.5;
-        let chol = Cholesky::new(k).unwrap();
+        let chol = random_positive_definite(n, seed);
         let fresh = upper_inverse(chol.l_dirty());
         inverse::upper_inverse_into(chol.l_dirty(), &mut scratch, &mut out);
         for j in 0..n {
