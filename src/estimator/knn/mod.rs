@@ -110,8 +110,10 @@ struct KnnFile {
 }
 
 impl Knn {
-    /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 1;
+    /// Version of the model file format this build writes and reads. 2: the detection score is
+    /// the local plane's (issue 27); a version-1 file's calibrated abstention limit was set on
+    /// the nearest distance, so it is refused rather than compared with the new score.
+    pub const FORMAT_VERSION: u32 = 2;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "knn";
 
