@@ -10,7 +10,8 @@
 //! `detection_score` is how far the frame's standardised features (those present) lie from a
 //! plane through the samples nearest its answer (`local_plane.rs`, as the GP's): the nearest
 //! sample's distance barely rose when a few of many features were corrupted (salt-and-pepper),
-//! since the neighbours moved to poses that absorbed them. O(n) more per frame.
+//! since the neighbours moved to poses that absorbed them. A few cells of a grid of the sample
+//! poses and O(D) more per frame.
 
 mod index;
 #[cfg(test)]
