@@ -85,150 +85,10 @@ pub(super) fn plane_distance(
     }
 }
 
-/// The sample poses in square cells (about two a cell), so that the [`LOCAL_SAMPLES`] nearest
-/// a pose cost a few cells, not a scan of every sample (k-NN's frames cost microseconds).
-#[derive(Debug, Clone)]
-pub(super) struct PoseGrid {
-    origin: [f64; 2],
-    cell: f64,
-    size: [usize; 2],
-    /// `items[starts[c]..starts[c + 1]]`: the samples of cell c (row-major), by index.
-    starts: Vec<usize>,
-    items: Vec<usize>,
-}
-
-impl PoseGrid {
-    /// The grid of finite `poses`.
-    pub(super) fn new(poses: &[[f64; 2]]) -> Self {
-        let (lo, hi) = poses.iter().fold(
-            ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
-            |(lo, hi), p| {
-                (
-                    [lo[0].min(p[0]), lo[1].min(p[1])],
-                    [hi[0].max(p[0]), hi[1].max(p[1])],
-                )
-            },
-        );
-        let n = poses.len().max(1) as f64;
-        let (w, h) = (hi[0] - lo[0], hi[1] - lo[1]);
-        // About two samples a cell over the box, and no more cells along a side than samples.
-        let cell = (2.0 * w * h / n).sqrt().max(2.0 * w.max(h) / n);
-        let cell = if cell > 0.0 && cell.is_finite() {
-            cell
-        } else {
-            1.0
-        };
-        let origin = if poses.is_empty() { [0.0; 2] } else { lo };
-        let size = [w, h].map(|e| {
-            if e.is_finite() {
-                (e / cell) as usize + 1
-            } else {
-                1
-            }
-        });
-        let mut grid = Self {
-            origin,
-            cell,
-            size,
-            starts: vec![0; size[0] * size[1] + 1],
-            items: vec![0; poses.len()],
-        };
-        let cells: Vec<usize> = poses.iter().map(|p| grid.cell_of(*p)).collect();
-        for &c in &cells {
-            grid.starts[c + 1] += 1;
-        }
-        for c in 0..size[0] * size[1] {
-            grid.starts[c + 1] += grid.starts[c];
-        }
-        let mut next = grid.starts.clone();
-        for (i, &c) in cells.iter().enumerate() {
-            grid.items[next[c]] = i;
-            next[c] += 1;
-        }
-        grid
-    }
-
-    /// Column and row of the cell holding `p`, clamped to the grid.
-    fn coordinates(&self, p: [f64; 2]) -> [usize; 2] {
-        [0, 1].map(|a| {
-            let t = ((p[a] - self.origin[a]) / self.cell).floor();
-            if t > 0.0 {
-                (t as usize).min(self.size[a] - 1)
-            } else {
-                0
-            }
-        })
-    }
-
-    fn cell_of(&self, p: [f64; 2]) -> usize {
-        let [c, r] = self.coordinates(p);
-        r * self.size[0] + c
-    }
-
-    /// The [`LOCAL_SAMPLES`] of `poses` (the poses the grid was built on) nearest `pose`: the
-    /// same samples as [`nearest_by_scan`] (ties to the lower index), by increasing distance.
-    /// Rings of cells around the pose's are searched until no cell beyond can hold a nearer one.
-    pub(super) fn nearest(&self, pose: [f64; 2], poses: &[[f64; 2]]) -> Vec<usize> {
-        let m = poses.len().min(LOCAL_SAMPLES);
-        let mut best: Vec<(f64, usize)> = Vec::with_capacity(m + 1);
-        let [cx, cy] = self.coordinates(pose).map(|c| c as isize);
-        let [nx, ny] = self.size.map(|s| s as isize);
-        let key = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-        for r in 0..=nx.max(ny) {
-            for y in (cy - r).max(0)..=(cy + r).min(ny - 1) {
-                // The ring: every column on its top and bottom rows, the two ends elsewhere.
-                let edge = (y - cy).abs() == r;
-                let step = if edge { 1 } else { (2 * r).max(1) };
-                let mut x = cx - r;
-                while x <= cx + r {
-                    if (0..nx).contains(&x) {
-                        let c = (y * nx + x) as usize;
-                        for &i in &self.items[self.starts[c]..self.starts[c + 1]] {
-                            let d = (squared_distance(poses[i], pose), i);
-                            if best.len() == m && key(&d, &best[m - 1]).is_ge() {
-                                continue;
-                            }
-                            let at = best.partition_point(|b| key(b, &d).is_lt());
-                            best.insert(at, d);
-                            best.truncate(m);
-                        }
-                    }
-                    x += step;
-                }
-            }
-            if best.len() == m && m > 0 {
-                // Any sample outside the searched block lies at least this far (less a margin
-                // for the rounding of the cell a pose was put in).
-                let gap = [0, 1]
-                    .map(|a| {
-                        let (c, n) = ([cx, cy][a], [nx, ny][a]);
-                        let low = if c - r > 0 {
-                            pose[a] - (self.origin[a] + (c - r) as f64 * self.cell)
-                        } else {
-                            f64::INFINITY
-                        };
-                        let high = if c + r < n - 1 {
-                            self.origin[a] + (c + r + 1) as f64 * self.cell - pose[a]
-                        } else {
-                            f64::INFINITY
-                        };
-                        low.min(high)
-                    })
-                    .into_iter()
-                    .fold(f64::INFINITY, f64::min)
-                    - 1e-9 * self.cell;
-                if gap > 0.0 && best[m - 1].0 < gap * gap {
-                    break;
-                }
-            }
-        }
-        best.into_iter().map(|(_, i)| i).collect()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::estimator::motion::PoseBuckets;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -255,7 +115,7 @@ mod tests {
         let line: Vec<[f64; 2]> = (0..50).map(|i| [i as f64 * 0.3, 40.0]).collect();
         let few: Vec<[f64; 2]> = vec![[1.0, 2.0], [1.0, 2.0], [3.0, 5.0]];
         for poses in [&mesh, &random, &line, &few] {
-            let grid = PoseGrid::new(poses);
+            let grid = PoseBuckets::new(poses);
             let mut queries: Vec<[f64; 2]> = poses.iter().step_by(7).copied().collect();
             queries.extend(
                 (0..200).map(|_| [rng.random_range(-12.0..12.0), rng.random_range(36.0..60.0)]),
@@ -264,7 +124,7 @@ mod tests {
             queries.extend((0..50).map(|i| [(i % 10) as f64 - 9.0, (i / 10) as f64 + 40.5]));
             for q in queries {
                 let scan = sorted(nearest_by_scan(q, poses), q, poses);
-                assert_eq!(grid.nearest(q, poses), scan, "{q:?}");
+                assert_eq!(grid.nearest(q, LOCAL_SAMPLES), scan, "{q:?}");
             }
         }
     }

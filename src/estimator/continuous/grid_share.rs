@@ -26,13 +26,22 @@ fn live() -> &'static Live<Table> {
 
 /// The live table of `key`, or the one `build` makes (then live under `key`).
 pub(super) fn shared(key: Vec<u8>, build: impl FnOnce() -> Table) -> Arc<Table> {
-    let built = try_shared(live(), key, true, || {
+    try_shared_infallible(live(), key, true, build)
+        .unwrap_or_else(|| unreachable!("a waiting call always gives a table"))
+}
+
+/// [`try_shared`] of a value whose build cannot fail.
+pub(super) fn try_shared_infallible<T>(
+    live: &Live<T>,
+    key: Vec<u8>,
+    wait: bool,
+    build: impl FnOnce() -> T,
+) -> Option<Arc<T>> {
+    match try_shared(live, key, wait, || {
         Ok::<_, std::convert::Infallible>(build())
-    });
-    match built {
-        Some(Ok(table)) => table,
-        Some(Err(never)) => match never {},
-        None => unreachable!("a waiting call always gives a table"),
+    })? {
+        Ok(value) => Some(value),
+        Err(never) => match never {},
     }
 }
 

@@ -10,8 +10,9 @@
 //! `detection_score` is how far the frame's standardised features (those present) lie from a
 //! plane through the samples nearest its answer (`local_plane.rs`, as the GP's): the nearest
 //! sample's distance barely rose when a few of many features were corrupted (salt-and-pepper),
-//! since the neighbours moved to poses that absorbed them. A few cells of a grid of the sample
-//! poses and O(D) more per frame.
+//! since the neighbours moved to poses that absorbed them. Its nearest samples come from the
+//! sample poses' buckets (`PoseBuckets`, the temporal tracker's): a few buckets and O(D) more
+//! per frame.
 
 mod index;
 #[cfg(test)]
@@ -25,7 +26,8 @@ use serde::{Deserialize, Serialize};
 use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
-use super::local_plane::{plane_distance, PoseGrid};
+use super::local_plane::{plane_distance, LOCAL_SAMPLES};
+use super::motion::PoseBuckets;
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -93,7 +95,7 @@ pub struct Knn {
     /// The tree over them, where one pays.
     index: Option<index::Index>,
     /// The sample poses in cells, for the detection score's nearest samples.
-    grid: PoseGrid,
+    grid: PoseBuckets,
 }
 
 /// The model file, and the fitted state.
@@ -156,7 +158,7 @@ impl Knn {
             squared_distance(&inputs[i * dim..(i + 1) * dim], query, &mask)
         });
         Self {
-            grid: PoseGrid::new(&file.sample_poses),
+            grid: PoseBuckets::new(&file.sample_poses),
             file,
             inputs,
             index,
@@ -361,7 +363,7 @@ impl PoseEstimator for Knn {
                 pose,
                 &self.file.sample_poses,
                 &self.inputs,
-                &self.grid.nearest(pose, &self.file.sample_poses),
+                &self.grid.nearest(pose, LOCAL_SAMPLES),
             )
         });
         Ok(PoseEstimate {

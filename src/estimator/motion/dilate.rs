@@ -130,6 +130,69 @@ impl PoseBuckets {
         }
     }
 
+    /// The `count` finite poses nearest `pose` (all when fewer), by increasing distance, ties to
+    /// the lower index: the samples a scan finds (the local plane's, `local_plane.rs`). Rings of
+    /// buckets around the pose's are searched until no bucket beyond can hold a nearer one.
+    pub(crate) fn nearest(&self, pose: [f64; 2], count: usize) -> Vec<usize> {
+        let poses = &self.poses;
+        let m = poses.len().min(count);
+        let mut best: Vec<(f64, usize)> = Vec::with_capacity(m + 1);
+        let [cx, cy] = [0, 1].map(|d| self.index(d, pose[d]) as isize);
+        let [nx, ny] = self.size.map(|s| s as isize);
+        let key = |a: &(f64, usize), b: &(f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+        for r in 0..=nx.max(ny) {
+            for y in (cy - r).max(0)..=(cy + r).min(ny - 1) {
+                // The ring: every column on its top and bottom rows, the two ends elsewhere.
+                let edge = (y - cy).abs() == r;
+                let step = if edge { 1 } else { (2 * r).max(1) };
+                let mut x = cx - r;
+                while x <= cx + r {
+                    if (0..nx).contains(&x) {
+                        let c = (y * nx + x) as usize;
+                        for &i in &self.members[self.start[c]..self.start[c + 1]] {
+                            let i = i as usize;
+                            let p = poses[i];
+                            let d = ((p[0] - pose[0]).powi(2) + (p[1] - pose[1]).powi(2), i);
+                            if best.len() == m && key(&d, &best[m - 1]).is_ge() {
+                                continue;
+                            }
+                            let at = best.partition_point(|b| key(b, &d).is_lt());
+                            best.insert(at, d);
+                            best.truncate(m);
+                        }
+                    }
+                    x += step;
+                }
+            }
+            if best.len() == m && m > 0 {
+                // Any sample outside the searched block lies at least this far (less a margin
+                // for the rounding of the cell a pose was put in).
+                let gap = [0, 1]
+                    .map(|a| {
+                        let (c, n) = ([cx, cy][a], [nx, ny][a]);
+                        let low = if c - r > 0 {
+                            pose[a] - (self.origin[a] + (c - r) as f64 * self.side)
+                        } else {
+                            f64::INFINITY
+                        };
+                        let high = if c + r < n - 1 {
+                            self.origin[a] + (c + r + 1) as f64 * self.side - pose[a]
+                        } else {
+                            f64::INFINITY
+                        };
+                        low.min(high)
+                    })
+                    .into_iter()
+                    .fold(f64::INFINITY, f64::min)
+                    - 1e-9 * self.side;
+                if gap > 0.0 && best[m - 1].0 < gap * gap {
+                    break;
+                }
+            }
+        }
+        best.into_iter().map(|(_, i)| i).collect()
+    }
+
     /// π′ over the poses: each pose's value of `contour` moved by `shift` and spread over
     /// `reach` (the direct scan's result, bit for bit).
     pub fn dilate(&self, contour: &[f64], reach: f64, shift: [f64; 2]) -> Vec<f64> {

@@ -7,7 +7,7 @@
 
 use std::sync::{Arc, Mutex, OnceLock};
 
-use super::super::grid_share::{try_shared, Live};
+use super::super::grid_share::{try_shared, try_shared_infallible, Live};
 use super::{FeatureKernel, SurrogateHyperparameters};
 
 /// A feature's fitted hyperparameters (`None`: a singular kernel at every start).
@@ -31,11 +31,7 @@ pub(super) fn hyperparameters(
     append(&mut key, inputs);
     key.push(b'|');
     append(&mut key, column);
-    let live = LIVE.get_or_init(Mutex::default);
-    match try_shared(live, key, wait, || Ok::<_, std::convert::Infallible>(fit()))? {
-        Ok(fitted) => Some(fitted),
-        Err(never) => match never {},
-    }
+    try_shared_infallible(LIVE.get_or_init(Mutex::default), key, wait, fit)
 }
 
 /// The kernel `build` factors for one feature with `h` on the standardised poses and the
