@@ -9,7 +9,10 @@
 //! each kernel gets a named copy made by [`with_avx!`].
 
 /// Defines `fn $name($args) -> $out` that runs the `#[inline(always)]` function `$work` compiled
-/// for AVX when the processor has it, else as built.
+/// for AVX when the processor has it, else as built; with `avx512 = $wide`, runs `$wide` (a
+/// form of `$work` with wider register tiles, the same chains) compiled for AVX-512 where the
+/// processor has that. AVX-512 brings FMA instructions too, but Rust never fuses a multiply and
+/// an addition on its own, so every lane still rounds both.
 macro_rules! with_avx {
     ($(#[$doc:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),*) -> $out:ty = $work:ident) => {
         $(#[$doc])*
@@ -26,6 +29,25 @@ macro_rules! with_avx {
                 }
             }
             $work($($arg),*)
+        }
+    };
+    ($(#[$doc:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),*) -> $out:ty = $work:ident,
+        avx512 = $wide:expr) => {
+        $(#[$doc])*
+        $vis fn $name($($arg: $ty),*) -> $out {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx512f")]
+                fn widest($($arg: $ty),*) -> $out {
+                    $wide($($arg),*)
+                }
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    // SAFETY: the processor was just found to have AVX-512F, all `widest` needs.
+                    return unsafe { widest($($arg),*) };
+                }
+            }
+            $crate::simd::with_avx!(fn narrower($($arg: $ty),*) -> $out = $work);
+            narrower($($arg),*)
         }
     };
 }

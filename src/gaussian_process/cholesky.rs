@@ -10,10 +10,13 @@
 
 use nalgebra::{Cholesky, DMatrix, Dyn};
 
-/// Columns factored together.
+/// Columns factored together, and rows of a register tile: with 256-bit vectors, two vectors
+/// of rows per column make eight independent chains (enough to hide an addition's latency).
 const PANEL: usize = 4;
-/// Rows of a register tile.
 const ROWS: usize = 8;
+/// The same with 512-bit vectors (AVX-512): eight columns, sixteen rows, sixteen chains.
+const WIDE_PANEL: usize = 8;
+const WIDE_ROWS: usize = 16;
 
 /// The Cholesky factor of a symmetric positive-definite matrix (its lower triangle is read, its
 /// strict upper triangle kept as given, as nalgebra's `l_dirty` shows it), or `None` where a
@@ -27,17 +30,29 @@ pub fn cholesky(mut matrix: DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
 }
 
 crate::simd::with_avx!(
-    /// [`factor_in_place`], with AVX where the processor has it.
-    fn factor(a: &mut [f64], n: usize) -> bool = factor_in_place
+    /// [`factor_in_place`], with AVX (or AVX-512, wider tiles) where the processor has it.
+    fn factor(a: &mut [f64], n: usize) -> bool = narrow,
+    avx512 = factor_in_place::<WIDE_PANEL, WIDE_ROWS, { WIDE_ROWS / 2 }, true>
 );
+
+/// [`factor_in_place`] with tiles for 256-bit vectors.
+#[inline(always)]
+fn narrow(a: &mut [f64], n: usize) -> bool {
+    factor_in_place::<PANEL, ROWS, { ROWS / 2 }, false>(a, n)
+}
 
 /// The factorisation of [`cholesky`] on a column-major slice; `false` at a refused pivot.
 #[inline(always)]
-fn factor_in_place(a: &mut [f64], n: usize) -> bool {
+/// With `WIDE` (only where the processor has AVX-512F), the tiles of eight columns use AVX-512
+/// instructions written out: the compiler's own vectorisation of them gathered and scattered.
+fn factor_in_place<const PANEL: usize, const ROWS: usize, const HALF: usize, const WIDE: bool>(
+    a: &mut [f64],
+    n: usize,
+) -> bool {
     for j0 in (0..n).step_by(PANEL) {
         let width = PANEL.min(n - j0);
         if width == PANEL {
-            update_panel(a, n, j0);
+            update_panel::<PANEL, ROWS, HALF, WIDE>(a, n, j0);
         } else {
             // The last, narrow panel: the updates from earlier columns one chain at a time.
             for j in j0..n {
@@ -75,49 +90,148 @@ fn factor_in_place(a: &mut [f64], n: usize) -> bool {
     true
 }
 
-/// Applies the updates of columns 0 … j0 − 1 to the lower part of columns j0 … j0 + 3, each
-/// entry's chain in increasing k; entries above the diagonal are computed but not stored.
+/// Applies the updates of columns 0 … j0 − 1 to the lower part of columns j0 … j0 + PANEL − 1,
+/// each entry's chain in increasing k; entries above the diagonal are computed but not stored.
+/// Rows go in tiles of `ROWS`, then one of `HALF` where that many are left, then the rest.
 #[inline(always)]
-fn update_panel(a: &mut [f64], n: usize, j0: usize) {
+fn update_panel<const PANEL: usize, const ROWS: usize, const HALF: usize, const WIDE: bool>(
+    a: &mut [f64],
+    n: usize,
+    j0: usize,
+) {
     let mut i0 = j0;
-    while i0 < n {
-        let rows = ROWS.min(n - i0);
-        let mut acc = [[0.0f64; ROWS]; PANEL];
-        for (c, column) in acc.iter_mut().enumerate() {
-            for (r, slot) in column.iter_mut().enumerate().take(rows) {
-                *slot = a[i0 + r + (j0 + c) * n];
-            }
+    #[cfg(target_arch = "x86_64")]
+    if WIDE && PANEL == WIDE_PANEL && ROWS == WIDE_ROWS {
+        while n - i0 >= WIDE_ROWS {
+            // SAFETY: `WIDE` is only set in the copy that runs where the processor has AVX-512F.
+            unsafe { update_tile_avx512::<2>(a, n, j0, i0) };
+            i0 += WIDE_ROWS;
         }
-        if rows == ROWS {
-            // One column of L per k: two bounds checks, then 16 multiply-subtracts in registers.
-            for column in a[..j0 * n].chunks_exact(n) {
-                let li: [f64; ROWS] = column[i0..i0 + ROWS].try_into().unwrap_or([0.0; ROWS]);
-                let lj: [f64; PANEL] = column[j0..j0 + PANEL].try_into().unwrap_or([0.0; PANEL]);
-                for c in 0..PANEL {
-                    for r in 0..ROWS {
-                        acc[c][r] -= lj[c] * li[r];
-                    }
-                }
-            }
+    }
+    while n - i0 >= ROWS {
+        update_tile::<PANEL, ROWS>(a, n, j0, i0);
+        i0 += ROWS;
+    }
+    if n - i0 >= HALF {
+        #[cfg(target_arch = "x86_64")]
+        if WIDE && PANEL == WIDE_PANEL && HALF == WIDE_ROWS / 2 {
+            // SAFETY: as above.
+            unsafe { update_tile_avx512::<1>(a, n, j0, i0) };
         } else {
-            for k in 0..j0 {
-                let base = k * n;
-                for c in 0..PANEL {
-                    let lj = a[base + j0 + c];
-                    for r in 0..rows {
-                        acc[c][r] -= lj * a[base + i0 + r];
-                    }
-                }
+            update_tile::<PANEL, HALF>(a, n, j0, i0);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        update_tile::<PANEL, HALF>(a, n, j0, i0);
+        i0 += HALF;
+    }
+    if i0 == n {
+        return;
+    }
+    let rows = n - i0;
+    let mut acc = [[0.0f64; ROWS]; PANEL];
+    for (c, column) in acc.iter_mut().enumerate() {
+        for (r, slot) in column.iter_mut().enumerate().take(rows) {
+            *slot = a[i0 + r + (j0 + c) * n];
+        }
+    }
+    for k in 0..j0 {
+        let base = k * n;
+        for c in 0..PANEL {
+            let lj = a[base + j0 + c];
+            for r in 0..rows {
+                acc[c][r] -= lj * a[base + i0 + r];
             }
         }
-        for (c, column) in acc.iter().enumerate() {
-            for (r, value) in column.iter().enumerate().take(rows) {
-                if i0 + r >= j0 + c {
-                    a[i0 + r + (j0 + c) * n] = *value;
-                }
+    }
+    store_tile(a, n, j0, i0, &acc, rows);
+}
+
+/// [`update_panel`] on the `ROWS` rows from `i0` (all below n).
+#[inline(always)]
+fn update_tile<const PANEL: usize, const ROWS: usize>(
+    a: &mut [f64],
+    n: usize,
+    j0: usize,
+    i0: usize,
+) {
+    let mut acc = [[0.0f64; ROWS]; PANEL];
+    for (c, column) in acc.iter_mut().enumerate() {
+        column.copy_from_slice(&a[i0 + (j0 + c) * n..i0 + ROWS + (j0 + c) * n]);
+    }
+    // One column of L per k: two bounds checks, then the tile's multiply-subtracts in registers.
+    for column in a[..j0 * n].chunks_exact(n) {
+        let li: [f64; ROWS] = column[i0..i0 + ROWS].try_into().unwrap_or([0.0; ROWS]);
+        let lj: [f64; PANEL] = column[j0..j0 + PANEL].try_into().unwrap_or([0.0; PANEL]);
+        for c in 0..PANEL {
+            for r in 0..ROWS {
+                acc[c][r] -= lj[c] * li[r];
             }
         }
-        i0 += rows;
+    }
+    store_tile(a, n, j0, i0, &acc, ROWS);
+}
+
+/// [`update_tile`] on eight columns and `GROUPS` × 8 rows, with AVX-512 registers: the same
+/// chains (a multiply, then a subtraction, each rounded) in the same order of k.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn update_tile_avx512<const GROUPS: usize>(a: &mut [f64], n: usize, j0: usize, i0: usize) {
+    use std::arch::x86_64::{
+        __m512d, _mm512_loadu_pd, _mm512_mul_pd, _mm512_set1_pd, _mm512_setzero_pd,
+        _mm512_storeu_pd, _mm512_sub_pd,
+    };
+    const LANES: usize = 8;
+    let rows = GROUPS * LANES;
+    let mut acc: [[__m512d; GROUPS]; WIDE_PANEL] = [[_mm512_setzero_pd(); GROUPS]; WIDE_PANEL];
+    for (c, column) in acc.iter_mut().enumerate() {
+        let start = i0 + (j0 + c) * n;
+        let entries = &a[start..start + rows];
+        for (g, value) in column.iter_mut().enumerate() {
+            // SAFETY: `entries` holds GROUPS × 8 values.
+            *value = unsafe { _mm512_loadu_pd(entries.as_ptr().add(g * LANES)) };
+        }
+    }
+    for column in a[..j0 * n].chunks_exact(n) {
+        let li = &column[i0..i0 + rows];
+        let lj = &column[j0..j0 + WIDE_PANEL];
+        let mut rows_k = [_mm512_setzero_pd(); GROUPS];
+        for (g, value) in rows_k.iter_mut().enumerate() {
+            // SAFETY: `li` holds GROUPS × 8 values.
+            *value = unsafe { _mm512_loadu_pd(li.as_ptr().add(g * LANES)) };
+        }
+        for (column_acc, &ljc) in acc.iter_mut().zip(lj) {
+            let factor = _mm512_set1_pd(ljc);
+            for (value, &row) in column_acc.iter_mut().zip(&rows_k) {
+                *value = _mm512_sub_pd(*value, _mm512_mul_pd(factor, row));
+            }
+        }
+    }
+    let mut values = [[0.0f64; WIDE_ROWS]; WIDE_PANEL];
+    for (column, column_acc) in values.iter_mut().zip(&acc) {
+        for (g, value) in column_acc.iter().enumerate() {
+            // SAFETY: a column of `values` holds 16 ≥ GROUPS × 8 values.
+            unsafe { _mm512_storeu_pd(column.as_mut_ptr().add(g * LANES), *value) };
+        }
+    }
+    store_tile(a, n, j0, i0, &values, rows);
+}
+
+/// Writes the first `rows` rows of a tile at (i0, j0), on and below the diagonal only.
+#[inline(always)]
+fn store_tile<const PANEL: usize, const ROWS: usize>(
+    a: &mut [f64],
+    n: usize,
+    j0: usize,
+    i0: usize,
+    acc: &[[f64; ROWS]; PANEL],
+    rows: usize,
+) {
+    for (c, column) in acc.iter().enumerate() {
+        for (r, value) in column.iter().enumerate().take(rows) {
+            if i0 + r >= j0 + c {
+                a[i0 + r + (j0 + c) * n] = *value;
+            }
+        }
     }
 }
 
