@@ -20,8 +20,14 @@ pub struct Objective {
     dim: usize,
     /// Outputs per sample.
     outputs: usize,
-    /// (z_i,d − z_j,d)² for each pair i < j (j-major), then each d.
-    diffs: Vec<f64>,
+    /// The fit samples' inputs, feature by feature (`d·m + i`): the kernel's loops run along
+    /// samples. The squared differences are formed again at each evaluation, as before stored
+    /// (the same bits): m²·D/2 of them were megabytes read twice per evaluation.
+    columns: Vec<f64>,
+    /// The same, sample by sample (`i·padded + d`), each padded with zeros to `padded` (a
+    /// multiple of 4): the gradient's loops run along features.
+    rows: Vec<f64>,
+    padded: usize,
     /// Scaled outputs of the fit samples (m × outputs).
     y: DMatrix<f64>,
     /// The m × m buffers of earlier evaluations, for the next ones: fresh ones cost a page
@@ -32,10 +38,10 @@ pub struct Objective {
 /// The large buffers of one evaluation (their contents do not carry over).
 #[derive(Debug, Default)]
 struct Buffers {
-    /// The kernel matrix, then its Cholesky factor.
+    /// The kernel matrix, then its Cholesky factor below the diagonal and K above it.
     kernel: Vec<f64>,
-    /// Kernel values of the pairs i < j.
-    kf: Vec<f64>,
+    /// One column's squared scaled distances.
+    distances: Vec<f64>,
     /// The upper triangle of K⁻¹.
     inverse: Vec<f64>,
     scratch: InverseScratch,
@@ -46,12 +52,13 @@ impl Objective {
     /// row-major `outputs` (`outputs.len() / samples` per sample).
     pub fn new(inputs: &[f64], outputs: &[f64], dim: usize, subset: &[usize]) -> Self {
         let m = subset.len();
-        let mut diffs = Vec::with_capacity(m * m.saturating_sub(1) / 2 * dim);
-        for j in 0..m {
-            for i in 0..j {
-                let (a, b) = (subset[i] * dim, subset[j] * dim);
-                diffs.extend((0..dim).map(|d| (inputs[a + d] - inputs[b + d]).powi(2)));
-            }
+        let columns = (0..dim)
+            .flat_map(|d| subset.iter().map(move |&i| inputs[i * dim + d]))
+            .collect();
+        let padded = dim.div_ceil(4).max(1) * 4;
+        let mut rows = vec![0.0; m * padded];
+        for (row, &i) in rows.chunks_exact_mut(padded).zip(subset) {
+            row[..dim].copy_from_slice(&inputs[i * dim..(i + 1) * dim]);
         }
         let k = outputs.len() / (inputs.len() / dim.max(1)).max(1);
         let y = DMatrix::from_fn(m, k, |i, o| outputs[subset[i] * k + o]);
@@ -59,7 +66,9 @@ impl Objective {
             m,
             dim,
             outputs: k,
-            diffs,
+            columns,
+            rows,
+            padded,
             y,
             spare: Mutex::default(),
         }
@@ -84,22 +93,29 @@ impl Objective {
         // Every entry is written below, so the buffer's earlier contents do not matter.
         let mut kernel = std::mem::take(&mut buffers.kernel);
         kernel.resize(m * m, 0.0);
-        let mut kernel = DMatrix::from_vec(m, m, kernel);
-        let mut kf = std::mem::take(&mut buffers.kf);
-        kf.clear();
-        kf.reserve(self.diffs.len() / dim.max(1));
-        let mut pairs = self.diffs.chunks_exact(dim);
-        for j in 0..m {
-            for i in 0..j {
-                let diff = pairs.next()?;
-                let r2: f64 = diff.iter().zip(&inv_l2).map(|(a, b)| a * b).sum();
-                let k = sf2 * (-0.5 * r2).exp();
-                kernel[(i, j)] = k;
-                kernel[(j, i)] = k;
-                kf.push(k);
+        let distances = &mut buffers.distances;
+        distances.resize(m, 0.0);
+        // Column i below the diagonal: each entry's sum over d in increasing d, as before, but
+        // samples side by side (vectorised) and stored at consecutive addresses.
+        for i in 0..m {
+            let below = &mut distances[i + 1..m];
+            below.fill(0.0);
+            for (column, il) in self.columns.chunks_exact(m.max(1)).zip(&inv_l2) {
+                let zi = column[i];
+                for (r2, zj) in below.iter_mut().zip(&column[i + 1..]) {
+                    let t = zi - zj;
+                    *r2 += t * t * il;
+                }
             }
-            kernel[(j, j)] = sf2 + sn2;
+            let column = &mut kernel[i * m..(i + 1) * m];
+            column[i] = sf2 + sn2;
+            for (k, r2) in column[i + 1..].iter_mut().zip(below.iter()) {
+                *k = sf2 * (-0.5 * r2).exp();
+            }
         }
+        // Above the diagonal too: the factor keeps it, and the gradient reads K there.
+        mirror_lower(&mut kernel, m);
+        let kernel = DMatrix::from_vec(m, m, kernel);
         let chol = cholesky(kernel)?;
         let alpha = chol.solve(&self.y);
         let log_det: f64 = 2.0 * (0..m).map(|i| chol.l_dirty()[(i, i)].ln()).sum::<f64>();
@@ -114,7 +130,6 @@ impl Objective {
             inv_l2,
             sf2,
             sn2,
-            kf,
             chol: Some(chol),
             alpha,
             buffers,
@@ -136,19 +151,20 @@ impl Objective {
             inv_l2,
             sf2,
             sn2,
-            kf,
             chol,
             alpha,
             buffers,
             ..
         } = point;
         // W = Σ_o α_o α_oᵀ − (outputs)·K⁻¹; ∂L/∂θ = ½ tr(W ∂K/∂θ).
-        let (inv_l2, sf2, sn2, kf, alpha) = (&*inv_l2, *sf2, *sn2, &*kf, &*alpha);
+        let (inv_l2, sf2, sn2, alpha) = (&*inv_l2, *sf2, *sn2, &*alpha);
         let Buffers {
             inverse, scratch, ..
         } = buffers;
-        upper_inverse_into(chol.as_ref()?.l_dirty(), scratch, inverse);
-        let inverse = &*inverse;
+        // The factor below the diagonal, K above it (as built, kept by the factorisation).
+        let factor = chol.as_ref()?.l_dirty();
+        upper_inverse_into(factor, scratch, inverse);
+        let (inverse, kernel) = (&*inverse, factor.as_slice());
         // Only i ≤ j is read: the upper triangle of K⁻¹, column-major.
         let w = |i: usize, j: usize| {
             let aa: f64 = (0..self.outputs)
@@ -156,16 +172,29 @@ impl Objective {
                 .sum();
             aa - outputs * inverse[i + j * m]
         };
-        let mut grad = vec![0.0; dim + 2];
+        // Each sum runs over the pairs i < j in the order j, then i, as before; the features'
+        // sums side by side, four to a block (the padding's sums are dropped).
+        let padded = self.padded;
+        let mut scales = vec![0.0; padded];
+        scales[..dim].copy_from_slice(inv_l2);
+        let mut sums = vec![[0.0f64; 4]; padded / 4];
         let mut off_diagonal = 0.0;
-        let pairs = (0..m).flat_map(|j| (0..j).map(move |i| (i, j)));
-        for (((i, j), k), diff) in pairs.zip(kf).zip(self.diffs.chunks_exact(dim)) {
-            let wk = w(i, j) * k;
-            off_diagonal += wk;
-            for ((g, d), il) in grad.iter_mut().zip(diff).zip(inv_l2) {
-                *g += wk * d * il;
+        for (j, zj) in self.rows.chunks_exact(padded).enumerate() {
+            let column = kernel[j * m..j * m + j].iter().enumerate();
+            for ((i, k), zi) in column.zip(self.rows.chunks_exact(padded)) {
+                let wk = w(i, j) * k;
+                off_diagonal += wk;
+                let blocks = zi.chunks_exact(4).zip(zj.chunks_exact(4));
+                for ((sum, (a, b)), il) in sums.iter_mut().zip(blocks).zip(scales.chunks_exact(4)) {
+                    for x in 0..4 {
+                        let t = a[x] - b[x];
+                        sum[x] += wk * (t * t) * il[x];
+                    }
+                }
             }
         }
+        let mut grad: Vec<f64> = sums.as_flattened()[..dim].to_vec();
+        grad.extend([0.0, 0.0]);
         let trace: f64 = (0..m).map(|i| w(i, i)).sum();
         // σn = σf·ratio, so log σf moves σn too.
         grad[dim + 1] = sn2 * trace;
@@ -183,12 +212,10 @@ pub(super) struct Point<'a> {
     inv_l2: Vec<f64>,
     sf2: f64,
     sn2: f64,
-    /// Kernel values of the pairs i < j, in the order of the differences.
-    kf: Vec<f64>,
     /// Always `Some` until dropped.
     chol: Option<Cholesky<f64, Dyn>>,
     alpha: DMatrix<f64>,
-    /// The other buffers (the kernel's and the pairs' are in `chol` and `kf`).
+    /// The other buffers (the kernel's is in `chol`).
     buffers: Buffers,
     spare: &'a Mutex<Vec<Buffers>>,
 }
@@ -196,13 +223,27 @@ pub(super) struct Point<'a> {
 impl Drop for Point<'_> {
     fn drop(&mut self) {
         let mut buffers = std::mem::take(&mut self.buffers);
-        buffers.kf = std::mem::take(&mut self.kf);
         if let Some(chol) = self.chol.take() {
             buffers.kernel = chol.unpack_dirty().data.into();
         }
         let mut spare = self.spare.lock().unwrap_or_else(|e| e.into_inner());
         if spare.len() < SPARE_BUFFERS {
             spare.push(buffers);
+        }
+    }
+}
+
+/// Copies the strict lower triangle of a column-major n × n matrix onto its upper triangle, in
+/// square blocks (a plain transpose strides through memory on one side).
+fn mirror_lower(matrix: &mut [f64], n: usize) {
+    const BLOCK: usize = 32;
+    for j0 in (0..n).step_by(BLOCK) {
+        for i0 in (0..=j0).step_by(BLOCK) {
+            for j in j0..(j0 + BLOCK).min(n) {
+                for i in i0..(i0 + BLOCK).min(j) {
+                    matrix[i + j * n] = matrix[j + i * n];
+                }
+            }
         }
     }
 }
