@@ -281,6 +281,32 @@ mod tests {
     }
 
     #[test]
+    fn every_tile_shape_matches_nalgebra_whichever_copy_runs_here() {
+        // The dispatch runs one copy on this processor; the others' tiles are checked here.
+        type Factor = fn(&mut [f64], usize) -> bool;
+        let shapes: [(&str, Factor); 3] = [
+            ("narrow", narrow),
+            (
+                "wide tiles",
+                factor_in_place::<WIDE_PANEL, WIDE_ROWS, { WIDE_ROWS / 2 }, false>,
+            ),
+            ("dispatched", factor),
+        ];
+        for (seed, n) in [3, 8, 9, 17, 24, 31, 40, 57, 100].into_iter().enumerate() {
+            let m = random_spd(n, 0.5, 100 + seed as u64);
+            let theirs = Cholesky::new(m.clone()).expect("positive definite");
+            for (name, shape) in shapes {
+                let mut ours = m.clone();
+                assert!(shape(ours.as_mut_slice(), n), "{name}, n = {n}: refused");
+                assert!(
+                    same_bits(&ours, theirs.l_dirty()),
+                    "{name}, n = {n}: the factors differ"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn a_kernel_matrix_with_ties_and_tiny_noise_matches_too() {
         // A squared-exponential kernel on points with duplicates: nearly singular.
         let n = 57;

@@ -213,6 +213,21 @@ fn inverse_of<const TILE: usize, const WIDE: bool>(
     }
 }
 
+/// [`upper_inverse`] with tiles of `tile` (4 or 8) rows and columns, without the AVX-512 loops:
+/// the copies the dispatch does not run on this processor.
+#[cfg(test)]
+pub(super) fn upper_inverse_with_tiles(l: &DMatrix<f64>, tile: usize) -> Vec<f64> {
+    let n = l.nrows();
+    let len = n.div_ceil(WIDE_TILE) * n * WIDE_TILE;
+    let (mut rows_of_l, mut m, mut out) =
+        (vec![f64::NAN; len], vec![f64::NAN; len], vec![0.0; n * n]);
+    match tile {
+        TILE => inverse_of::<TILE, false>(l.as_slice(), n, &mut rows_of_l, &mut m, &mut out),
+        _ => inverse_of::<WIDE_TILE, false>(l.as_slice(), n, &mut rows_of_l, &mut m, &mut out),
+    }
+    out
+}
+
 /// Lanes of an AVX-512 register of f64.
 #[cfg(target_arch = "x86_64")]
 const LANES: usize = 8;
