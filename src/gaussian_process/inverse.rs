@@ -88,7 +88,7 @@ fn inverse_of<const TILE: usize, const WIDE: bool>(
     }
     // The rows past n of the last panel: tiles read them (and store nothing they make), so
     // they must be finite; a buffer of another size may hold anything there.
-    if n % TILE != 0 {
+    if !n.is_multiple_of(TILE) {
         let last = &mut rows_of_l[(n / TILE) * panel_len..];
         for row in last.chunks_exact_mut(TILE) {
             row[n % TILE..].fill(0.0);
