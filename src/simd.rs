@@ -1,8 +1,10 @@
 //! Runs hot loops (the Gaussian process's Cholesky factor and inverse, the HMM's general
 //! recursions, the particle filter's per-feature exponents) with 256-bit vectors where the
-//! processor has them (AVX: four multiplies or additions per instruction instead of two).
+//! processor has them (AVX: four multiplies or additions per instruction instead of two), and
+//! for the Cholesky factor and inverse a copy with 512-bit tiles where there is AVX-512F.
 //! Only the width changes: each lane still rounds every multiply and every addition on its
-//! own (no fused multiply-add is enabled), so the bits are those of the plain build.
+//! own (Rust never fuses a multiply and an addition unasked, even where AVX-512 brings FMA), so
+//! the bits are those of the plain build.
 //!
 //! A `#[target_feature]` function only widens code inlined into it, and a closure passed to a
 //! generic one is not reliably inlined (the earlier generic dispatch ran the plain build), so
