@@ -1,7 +1,7 @@
 //! One motion under the particle filter: predict (the line's shift for a share of the
 //! particles, then a Gaussian step), weigh by the frame's likelihood, resample when degenerate.
-//! From `PARALLEL_FROM` particles the per-particle work (moves, likelihood, weights, the
-//! radius's sort by halves) runs on two threads ([`Pool`]); the random draws and every sum stay
+//! From `PARALLEL_FROM` particles the per-particle work (moves, likelihood, weights; the
+//! radius beside the covariance) runs on two threads ([`Pool`]); the random draws and every sum stay
 //! on the caller, in the serial order, so the bits do not depend on the threads.
 
 use std::sync::{Mutex, MutexGuard, PoisonError};
@@ -12,7 +12,7 @@ use rand_distr::StandardNormal;
 
 use super::likelihood::{exp, BlockScratch, FrameLikelihood, BLOCK};
 use super::pool::{Disjoint, Outcome, Pool};
-use super::radius::{merged_radius, WeightedRadius};
+use super::radius::WeightedRadius;
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::VelocityLine;
@@ -48,15 +48,17 @@ pub(super) struct FilterMotion<'a> {
     uniforms: Vec<f64>,
     /// Scratch kept between frames, so that a frame allocates nothing per particle: the
     /// frame's likelihood terms, each particle's random draw and log-likelihood, each block's
-    /// largest log-likelihood, each thread's block maps and distance sort (the second sort
-    /// holds the later half of the particles on two threads), and the resampled particles.
+    /// largest log-likelihood, each thread's block maps, the distance sort, and the resampled
+    /// particles.
     likelihood: FrameLikelihood,
     draws: Vec<Draw>,
     logs: Vec<f64>,
     maxes: Vec<f64>,
     scratch: [Mutex<BlockScratch>; 2],
-    radius: [Mutex<WeightedRadius>; 2],
+    radius: Mutex<WeightedRadius>,
     resampled: Vec<[f64; 2]>,
+    /// The weighted mean and the sum of the squared weights, when the update took them.
+    moments: Option<([f64; 2], f64)>,
     /// The second thread, from `PARALLEL_FROM` particles; whether it is used this frame, and
     /// whether it goes unused after frames that found it slow (`adaptive`): for so many more
     /// frames (`serial_frames`), the last such pause (`backoff`), and the frame's jobs so far.
@@ -146,7 +148,6 @@ impl<'a> FilterMotion<'a> {
             })
             .collect();
         let (norms, uniforms) = filter.likelihood_constants();
-        let radius = || Mutex::new(WeightedRadius::with_capacity(n));
         Self {
             filter,
             rng,
@@ -161,8 +162,9 @@ impl<'a> FilterMotion<'a> {
             logs: vec![0.0; n],
             maxes: vec![f64::NEG_INFINITY; n.div_ceil(BLOCK)],
             scratch: Default::default(),
-            radius: [radius(), radius()],
+            radius: Mutex::new(WeightedRadius::with_capacity(n)),
             resampled: Vec::with_capacity(n),
+            moments: None,
             pool: two.then(|| filter.workers.take()).flatten(),
             threads: false,
             adaptive: false,
@@ -294,7 +296,13 @@ impl<'a> FilterMotion<'a> {
         if !(total > 0.0 && total.is_finite()) {
             return None;
         }
-        self.weights.iter_mut().for_each(|w| *w /= total);
+        // Normalised in the same pass as the estimate's sums (`moments`).
+        let (mut mean, mut squares) = ([0.0; 2], 0.0);
+        for (w, p) in self.weights.iter_mut().zip(&self.particles) {
+            *w /= total;
+            (mean, squares) = add_moments(mean, squares, *w, p);
+        }
+        self.moments = Some((mean, squares));
         Some(-(total.ln() + max))
     }
 
@@ -327,27 +335,27 @@ impl<'a> FilterMotion<'a> {
     /// the mean (mm²), and the sum of the squared weights.
     fn estimate(&mut self) -> ([f64; 2], f64, [[f64; 2]; 2], f64) {
         let (particles, weights) = (&self.particles, &self.weights);
-        // One pass for the mean and the squares: separate sums, each in the particles' order.
-        let (mut mean, mut squares) = ([0.0; 2], 0.0);
-        for (p, w) in particles.iter().zip(weights) {
-            mean[0] += w * p[0];
-            mean[1] += w * p[1];
-            squares += w * w;
-        }
+        // One pass for the mean and the squares (or the update's): separate sums, each in the
+        // particles' order.
+        let (mean, squares) = self.moments.take().unwrap_or_else(|| {
+            let (mut mean, mut squares) = ([0.0; 2], 0.0);
+            for (p, &w) in particles.iter().zip(weights) {
+                (mean, squares) = add_moments(mean, squares, w, p);
+            }
+            (mean, squares)
+        });
         let Some(pool) = self.pool() else {
-            let radius = lock(&self.radius[0]).radius(particles, weights, mean, 0.9);
+            let radius = lock(&self.radius).radius(particles, weights, mean, 0.9);
             return (mean, radius, covariance(particles, weights, mean), squares);
         };
-        // Each half sorted on its own thread, the covariance on whichever is free first.
-        let half = particles.len() / 2;
-        let moments = Mutex::new([[0.0; 2]; 2]);
-        let outcome = pool.run(3, &|chunk, _| match chunk {
-            0 => lock(&self.radius[0]).sort_by_distance(&particles[..half], &weights[..half], mean),
-            1 => lock(&self.radius[1]).sort_by_distance(&particles[half..], &weights[half..], mean),
+        // The radius on one thread, the covariance on the other.
+        let (radius, moments) = (Mutex::new(0.0), Mutex::new([[0.0; 2]; 2]));
+        let outcome = pool.run(2, &|chunk, _| match chunk {
+            0 => *lock(&radius) = lock(&self.radius).radius(particles, weights, mean, 0.9),
             _ => *lock(&moments) = covariance(particles, weights, mean),
         });
         self.outcome = self.outcome.add(outcome);
-        let radius = merged_radius(&lock(&self.radius[0]), &lock(&self.radius[1]), 0.9);
+        let radius = radius.into_inner().unwrap_or_else(PoisonError::into_inner);
         let moments = moments.into_inner().unwrap_or_else(PoisonError::into_inner);
         (mean, radius, moments, squares)
     }
@@ -360,6 +368,12 @@ impl Drop for FilterMotion<'_> {
             self.filter.workers.keep(pool);
         }
     }
+}
+
+/// The weighted mean and the sum of the squared weights, with particle `p` of weight `w` added.
+#[inline(always)]
+fn add_moments(mean: [f64; 2], squares: f64, w: f64, p: &[f64; 2]) -> ([f64; 2], f64) {
+    ([mean[0] + w * p[0], mean[1] + w * p[1]], squares + w * w)
 }
 
 /// The particles' weighted second moments about `mean` (mm²).
