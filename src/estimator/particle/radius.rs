@@ -261,7 +261,10 @@ mod tests {
             random_weights += usize::from(case % 3 != 0 && case % 7 != 3 && n >= SELECT_FROM);
         }
         // The selection decides nearly every set of unequal weights.
-        assert!(selected >= random_weights * 9 / 10, "{selected} of {random_weights}");
+        assert!(
+            selected >= random_weights * 9 / 10,
+            "{selected} of {random_weights}"
+        );
         assert_eq!(radius.radius(&[], &[], [0.0; 2], 0.9), 0.0);
         assert_eq!(radius.radius(&[[3.0, 4.0]], &[0.5], [0.0; 2], 0.9), 0.0);
         assert_eq!(radius.radius(&[[3.0, 4.0]], &[1.0], [0.0; 2], 0.9), 5.0);

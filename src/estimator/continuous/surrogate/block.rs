@@ -65,9 +65,8 @@ impl Grid {
     #[target_feature(enable = "avx")]
     fn eval_block_avx(&self, poses: &[[f64; 2]], dim: usize, out: &mut [f64]) {
         use std::arch::x86_64::{
-            __m256d, _mm256_add_pd, _mm256_castpd256_pd128, _mm256_extractf128_pd,
-            _mm256_loadu_pd, _mm256_mul_pd, _mm256_set1_pd, _mm256_setzero_pd, _mm_cvtsd_f64,
-            _mm_unpackhi_pd,
+            __m256d, _mm256_add_pd, _mm256_castpd256_pd128, _mm256_extractf128_pd, _mm256_loadu_pd,
+            _mm256_mul_pd, _mm256_set1_pd, _mm256_setzero_pd, _mm_cvtsd_f64, _mm_unpackhi_pd,
         };
         let lanes = |v: __m256d| {
             let (lo, hi) = (_mm256_castpd256_pd128(v), _mm256_extractf128_pd::<1>(v));
