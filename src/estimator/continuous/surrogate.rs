@@ -8,7 +8,7 @@ mod block;
 mod grid;
 pub(super) mod share;
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
@@ -77,6 +77,10 @@ struct Grid {
     /// Per node, per feature: f, ∂f/∂x, ∂f/∂y, ∂²f/∂x∂y (raw units, mm), node-major; shared
     /// by every live fit that tabulates the same maps ([`grid_share`]).
     table: Arc<Vec<[f64; 4]>>,
+    /// The table regrouped for `Continuous::feature_maps_block` with AVX, made on its first
+    /// use (block.rs, `Grid::lanes`): per node and group of four features, each node value of
+    /// the four side by side.
+    lanes: Arc<OnceLock<Vec<[[f64; 4]; 4]>>>,
 }
 
 /// A grid's origin, step (mm), nodes per axis and table.

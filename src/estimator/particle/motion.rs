@@ -1,9 +1,11 @@
 //! One motion under the particle filter: predict (the line's shift for a share of the
 //! particles, then a Gaussian step), weigh by the frame's likelihood, resample when degenerate.
-//! From `PARALLEL_FROM` particles the per-particle work (moves, likelihood, weights, the
-//! radius's sort by halves) runs on two threads ([`Pool`]); the random draws and every sum stay
-//! on the caller, in the serial order, so the bits do not depend on the threads.
+//! From `PARALLEL_FROM` particles the per-particle work (moves, likelihood, weights; the
+//! radius beside the covariance) runs on two threads ([`Pool`]); the random draws stay on one
+//! thread and every sum on the caller, in the serial order, so the bits do not depend on the
+//! threads.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use rand::{Rng, SeedableRng};
@@ -12,7 +14,7 @@ use rand_distr::StandardNormal;
 
 use super::likelihood::{exp, BlockScratch, FrameLikelihood, BLOCK};
 use super::pool::{Disjoint, Outcome, Pool};
-use super::radius::{merged_radius, WeightedRadius};
+use super::radius::WeightedRadius;
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::VelocityLine;
@@ -48,15 +50,17 @@ pub(super) struct FilterMotion<'a> {
     uniforms: Vec<f64>,
     /// Scratch kept between frames, so that a frame allocates nothing per particle: the
     /// frame's likelihood terms, each particle's random draw and log-likelihood, each block's
-    /// largest log-likelihood, each thread's block maps and distance sort (the second sort
-    /// holds the later half of the particles on two threads), and the resampled particles.
+    /// largest log-likelihood, each thread's block maps, the distance sort, and the resampled
+    /// particles.
     likelihood: FrameLikelihood,
     draws: Vec<Draw>,
     logs: Vec<f64>,
     maxes: Vec<f64>,
     scratch: [Mutex<BlockScratch>; 2],
-    radius: [Mutex<WeightedRadius>; 2],
+    radius: Mutex<WeightedRadius>,
     resampled: Vec<[f64; 2]>,
+    /// The weighted mean and the sum of the squared weights, when the update took them.
+    moments: Option<([f64; 2], f64)>,
     /// The second thread, from `PARALLEL_FROM` particles; whether it is used this frame, and
     /// whether it goes unused after frames that found it slow (`adaptive`): for so many more
     /// frames (`serial_frames`), the last such pause (`backoff`), and the frame's jobs so far.
@@ -146,7 +150,6 @@ impl<'a> FilterMotion<'a> {
             })
             .collect();
         let (norms, uniforms) = filter.likelihood_constants();
-        let radius = || Mutex::new(WeightedRadius::with_capacity(n));
         Self {
             filter,
             rng,
@@ -161,8 +164,9 @@ impl<'a> FilterMotion<'a> {
             logs: vec![0.0; n],
             maxes: vec![f64::NEG_INFINITY; n.div_ceil(BLOCK)],
             scratch: Default::default(),
-            radius: [radius(), radius()],
+            radius: Mutex::new(WeightedRadius::with_capacity(n)),
             resampled: Vec::with_capacity(n),
+            moments: None,
             pool: two.then(|| filter.workers.take()).flatten(),
             threads: false,
             adaptive: false,
@@ -202,54 +206,55 @@ impl<'a> FilterMotion<'a> {
         }
     }
 
-    /// Each particle's draw, in the order of the serial filter: the share `velocity_share` of
-    /// the particles takes the line and a Gaussian step, the others a point of the disc (the
-    /// line's share is precise, the others keep the filter from losing a pose that leaves the
-    /// line). Drawn here, on one thread, so the random stream does not depend on the threads.
-    fn draw(&mut self) {
-        let share = self.filter.file.settings.velocity_share;
-        self.draws.clear();
-        for _ in 0..self.particles.len() {
-            let draw = if self.rng.random::<f64>() < share {
-                let dx: f64 = self.rng.sample(StandardNormal);
-                let dy: f64 = self.rng.sample(StandardNormal);
-                Draw::Line([dx, dy])
-            } else {
-                let u = self.rng.random::<f64>();
-                Draw::Disc([u, self.rng.random::<f64>()])
-            };
-            self.draws.push(draw);
-        }
-    }
-
     /// Moves the particles by their draws (with `prediction`), and with `weigh` takes each
     /// particle's log-likelihood of the frame (`likelihood`, prepared) and each block's largest.
+    ///
+    /// The draws are taken in the serial filter's order by one thread, in the job's first
+    /// chunk ([`draw_blocks`]), so the random stream does not depend on the threads; each block
+    /// of them is published as it is done, and a block's moves wait for its draws: on two
+    /// threads the other thread moves and weighs the first blocks while the draws go on.
     fn move_and_weigh(&mut self, prediction: Option<&Prediction>, weigh: bool) {
         let maps = &self.filter.maps;
         let n = self.particles.len();
+        let drawing = prediction.is_some();
+        if drawing {
+            self.draws.resize(n, Draw::Line([0.0; 2]));
+        }
+        let share = self.filter.file.settings.velocity_share;
+        let (rng, drawn) = (Mutex::new(&mut self.rng), AtomicUsize::new(0));
+        let draws = Disjoint::new(&mut self.draws);
         let (particles, logs) = (
             Disjoint::new(&mut self.particles),
             Disjoint::new(&mut self.logs),
         );
         let maxes = Disjoint::new(&mut self.maxes);
-        let (draws, likelihood, scratch) = (&self.draws, &self.likelihood, &self.scratch);
+        let (likelihood, scratch) = (&self.likelihood, &self.scratch);
         let pool = self.pool.as_ref().filter(|_| self.threads);
+        let first = usize::from(drawing);
         each_chunk(
             pool,
             &mut self.outcome,
-            n.div_ceil(BLOCK),
+            first + n.div_ceil(BLOCK),
             &|chunk, thread| {
-                let range = chunk * BLOCK..((chunk + 1) * BLOCK).min(n);
+                if chunk < first {
+                    draw_blocks(&mut lock(&rng), share, &draws, n, &drawn);
+                    return;
+                }
+                let block = chunk - first;
+                let range = block * BLOCK..((block + 1) * BLOCK).min(n);
                 // SAFETY: each chunk takes its own range of each slice.
                 let (particles, logs, max) = unsafe {
                     (
                         particles.range(range.clone()),
                         logs.range(range.clone()),
-                        maxes.range(chunk..chunk + 1),
+                        maxes.range(block..block + 1),
                     )
                 };
                 if let Some(prediction) = prediction {
-                    for (p, &draw) in particles.iter_mut().zip(&draws[range]) {
+                    wait_for(&drawn, range.end);
+                    // SAFETY: published (`drawn`), so no longer written; read by this chunk only.
+                    let draws = unsafe { draws.range(range) };
+                    for (p, &draw) in particles.iter_mut().zip(&*draws) {
                         *p = prediction.apply(*p, draw);
                     }
                 }
@@ -294,7 +299,13 @@ impl<'a> FilterMotion<'a> {
         if !(total > 0.0 && total.is_finite()) {
             return None;
         }
-        self.weights.iter_mut().for_each(|w| *w /= total);
+        // Normalised in the same pass as the estimate's sums (`moments`).
+        let (mut mean, mut squares) = ([0.0; 2], 0.0);
+        for (w, p) in self.weights.iter_mut().zip(&self.particles) {
+            *w /= total;
+            (mean, squares) = add_moments(mean, squares, *w, p);
+        }
+        self.moments = Some((mean, squares));
         Some(-(total.ln() + max))
     }
 
@@ -327,27 +338,27 @@ impl<'a> FilterMotion<'a> {
     /// the mean (mm²), and the sum of the squared weights.
     fn estimate(&mut self) -> ([f64; 2], f64, [[f64; 2]; 2], f64) {
         let (particles, weights) = (&self.particles, &self.weights);
-        // One pass for the mean and the squares: separate sums, each in the particles' order.
-        let (mut mean, mut squares) = ([0.0; 2], 0.0);
-        for (p, w) in particles.iter().zip(weights) {
-            mean[0] += w * p[0];
-            mean[1] += w * p[1];
-            squares += w * w;
-        }
+        // One pass for the mean and the squares (or the update's): separate sums, each in the
+        // particles' order.
+        let (mean, squares) = self.moments.take().unwrap_or_else(|| {
+            let (mut mean, mut squares) = ([0.0; 2], 0.0);
+            for (p, &w) in particles.iter().zip(weights) {
+                (mean, squares) = add_moments(mean, squares, w, p);
+            }
+            (mean, squares)
+        });
         let Some(pool) = self.pool() else {
-            let radius = lock(&self.radius[0]).radius(particles, weights, mean, 0.9);
+            let radius = lock(&self.radius).radius(particles, weights, mean, 0.9);
             return (mean, radius, covariance(particles, weights, mean), squares);
         };
-        // Each half sorted on its own thread, the covariance on whichever is free first.
-        let half = particles.len() / 2;
-        let moments = Mutex::new([[0.0; 2]; 2]);
-        let outcome = pool.run(3, &|chunk, _| match chunk {
-            0 => lock(&self.radius[0]).sort_by_distance(&particles[..half], &weights[..half], mean),
-            1 => lock(&self.radius[1]).sort_by_distance(&particles[half..], &weights[half..], mean),
+        // The radius on one thread, the covariance on the other.
+        let (radius, moments) = (Mutex::new(0.0), Mutex::new([[0.0; 2]; 2]));
+        let outcome = pool.run(2, &|chunk, _| match chunk {
+            0 => *lock(&radius) = lock(&self.radius).radius(particles, weights, mean, 0.9),
             _ => *lock(&moments) = covariance(particles, weights, mean),
         });
         self.outcome = self.outcome.add(outcome);
-        let radius = merged_radius(&lock(&self.radius[0]), &lock(&self.radius[1]), 0.9);
+        let radius = radius.into_inner().unwrap_or_else(PoisonError::into_inner);
         let moments = moments.into_inner().unwrap_or_else(PoisonError::into_inner);
         (mean, radius, moments, squares)
     }
@@ -360,6 +371,60 @@ impl Drop for FilterMotion<'_> {
             self.filter.workers.keep(pool);
         }
     }
+}
+
+/// Each of the `n` particles' draws into `draws`, in the order of the serial filter: the share
+/// `velocity_share` of the particles takes the line and a Gaussian step, the others a point of
+/// the disc (the line's share is precise, the others keep the filter from losing a pose that
+/// leaves the line). Each block's end is stored in `drawn` once its draws are written.
+fn draw_blocks(
+    rng: &mut ChaCha8Rng,
+    velocity_share: f64,
+    draws: &Disjoint<'_, Draw>,
+    n: usize,
+    drawn: &AtomicUsize,
+) {
+    // Everything published also when a draw panics, so no chunk waits for ever (the panic
+    // reaches the caller, which does not use the outputs).
+    struct Publish<'a>(&'a AtomicUsize);
+    impl Drop for Publish<'_> {
+        fn drop(&mut self) {
+            self.0.store(usize::MAX, Ordering::Release);
+        }
+    }
+    let _publish = Publish(drawn);
+    for start in (0..n).step_by(BLOCK) {
+        let end = (start + BLOCK).min(n);
+        // SAFETY: not yet published, so no other chunk reads these draws.
+        for draw in unsafe { draws.range(start..end) } {
+            *draw = if rng.random::<f64>() < velocity_share {
+                let dx: f64 = rng.sample(StandardNormal);
+                let dy: f64 = rng.sample(StandardNormal);
+                Draw::Line([dx, dy])
+            } else {
+                let u = rng.random::<f64>();
+                Draw::Disc([u, rng.random::<f64>()])
+            };
+        }
+        drawn.store(end, Ordering::Release);
+    }
+}
+
+/// Waits until the draws up to `end` are published (on one thread they always are).
+fn wait_for(drawn: &AtomicUsize, end: usize) {
+    let start = std::time::Instant::now();
+    while drawn.load(Ordering::Acquire) < end {
+        match start.elapsed() < WAITED_AT_MOST {
+            true => std::hint::spin_loop(),
+            false => std::thread::yield_now(),
+        }
+    }
+}
+
+/// The weighted mean and the sum of the squared weights, with particle `p` of weight `w` added.
+#[inline(always)]
+fn add_moments(mean: [f64; 2], squares: f64, w: f64, p: &[f64; 2]) -> ([f64; 2], f64) {
+    ([mean[0] + w * p[0], mean[1] + w * p[1]], squares + w * w)
 }
 
 /// The particles' weighted second moments about `mean` (mm²).
@@ -403,9 +468,6 @@ impl MotionTracker for FilterMotion<'_> {
                 bounds: self.filter.maps.sample_bounds(),
             }
         });
-        if prediction.is_some() {
-            self.draw();
-        }
         self.last = Some(time);
         let usable = values.iter().any(Option::is_some);
         if usable {

@@ -2,9 +2,10 @@
 //! weighs its particles with. The same interpolation as `Grid::eval`'s values, operation for
 //! operation, so the values are bit-identical; only the value weights are computed (no slopes),
 //! and each pose's cell is looked up once for all its features (they are contiguous per node).
-//! With AVX, four features at a time: each lane multiplies a feature's four node values by the
-//! corner's weights and adds the products in the plain order (no fused multiply-add), so the
-//! bits are the plain build's.
+//! With AVX, four features at a time from a copy of the table regrouped by four features (each
+//! node value of the four side by side, so a product needs no shuffle): each lane multiplies a
+//! feature's four node values by the corner's weights and adds the products in the plain order
+//! (no fused multiply-add), so the bits are the plain build's.
 
 use super::grid::hermite;
 use super::Grid;
@@ -26,7 +27,13 @@ impl Grid {
     fn eval_block_plain(&self, poses: &[[f64; 2]], dim: usize, out: &mut [f64]) {
         let m = poses.len();
         for (p, q) in poses.iter().enumerate() {
-            let (weights, at) = self.value_weights(*q, dim);
+            let (weights, nodes) = self.value_weights(*q);
+            let at = [
+                nodes[0] * dim,
+                nodes[1] * dim,
+                nodes[2] * dim,
+                nodes[3] * dim,
+            ];
             self.features_at(&weights, &at, 0..dim, |i, v| out[i * m + p] = v);
         }
     }
@@ -51,18 +58,16 @@ impl Grid {
         }
     }
 
-    /// [`Grid::eval_block_plain`] four features at a time in 256-bit vectors: per corner, four
-    /// features' node values times the weights, transposed so that each lane adds its feature's
-    /// four products in the plain order.
+    /// [`Grid::eval_block_plain`] four features at a time in 256-bit vectors, from the table
+    /// regrouped ([`Grid::lanes`]): per corner, each node value of four features times its
+    /// weight in one product, and each lane adds its feature's four products in the plain order.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
     fn eval_block_avx(&self, poses: &[[f64; 2]], dim: usize, out: &mut [f64]) {
         use std::arch::x86_64::{
-            __m256d, _mm256_add_pd, _mm256_castpd256_pd128, _mm256_extractf128_pd, _mm256_mul_pd,
-            _mm256_permute2f128_pd, _mm256_set_pd, _mm256_setzero_pd, _mm256_unpackhi_pd,
-            _mm256_unpacklo_pd, _mm_cvtsd_f64, _mm_unpackhi_pd,
+            __m256d, _mm256_add_pd, _mm256_castpd256_pd128, _mm256_extractf128_pd, _mm256_loadu_pd,
+            _mm256_mul_pd, _mm256_set1_pd, _mm256_setzero_pd, _mm_cvtsd_f64, _mm_unpackhi_pd,
         };
-        let load = |n: &[f64; 4]| _mm256_set_pd(n[3], n[2], n[1], n[0]);
         let lanes = |v: __m256d| {
             let (lo, hi) = (_mm256_castpd256_pd128(v), _mm256_extractf128_pd::<1>(v));
             [
@@ -73,49 +78,65 @@ impl Grid {
             ]
         };
         let m = poses.len();
-        let wide = dim - dim % 4;
+        let groups = dim / 4;
+        let grouped = self.lanes(dim);
         for (p, q) in poses.iter().enumerate() {
-            let (weights, at) = self.value_weights(*q, dim);
-            let w = [
-                load(&weights[0]),
-                load(&weights[1]),
-                load(&weights[2]),
-                load(&weights[3]),
-            ];
-            for i in (0..wide).step_by(4) {
+            let (weights, nodes) = self.value_weights(*q);
+            for g in 0..groups {
                 let mut sum = _mm256_setzero_pd();
-                for (w, &at) in w.iter().zip(&at) {
-                    let n = &self.table[at + i..at + i + 4];
+                for (w, &node) in weights.iter().zip(&nodes) {
+                    let n = &grouped[node * groups + g];
+                    // SAFETY: each `n[k]` is four contiguous doubles.
+                    let load = |k: usize| unsafe { _mm256_loadu_pd(n[k].as_ptr()) };
                     let (p0, p1) = (
-                        _mm256_mul_pd(*w, load(&n[0])),
-                        _mm256_mul_pd(*w, load(&n[1])),
+                        _mm256_mul_pd(_mm256_set1_pd(w[0]), load(0)),
+                        _mm256_mul_pd(_mm256_set1_pd(w[1]), load(1)),
                     );
                     let (p2, p3) = (
-                        _mm256_mul_pd(*w, load(&n[2])),
-                        _mm256_mul_pd(*w, load(&n[3])),
+                        _mm256_mul_pd(_mm256_set1_pd(w[2]), load(2)),
+                        _mm256_mul_pd(_mm256_set1_pd(w[3]), load(3)),
                     );
-                    // Column k holds the four features' k-th products.
-                    let (a, b) = (_mm256_unpacklo_pd(p0, p1), _mm256_unpackhi_pd(p0, p1));
-                    let (c, d) = (_mm256_unpacklo_pd(p2, p3), _mm256_unpackhi_pd(p2, p3));
-                    let c0 = _mm256_permute2f128_pd::<0x20>(a, c);
-                    let c1 = _mm256_permute2f128_pd::<0x20>(b, d);
-                    let c2 = _mm256_permute2f128_pd::<0x31>(a, c);
-                    let c3 = _mm256_permute2f128_pd::<0x31>(b, d);
-                    let t = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(c0, c1), c2), c3);
+                    let t = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(p0, p1), p2), p3);
                     sum = _mm256_add_pd(sum, t);
                 }
                 for (l, v) in lanes(sum).into_iter().enumerate() {
-                    out[(i + l) * m + p] = v;
+                    out[(4 * g + l) * m + p] = v;
                 }
             }
-            self.features_at(&weights, &at, wide..dim, |i, v| out[i * m + p] = v);
+            let at = [
+                nodes[0] * dim,
+                nodes[1] * dim,
+                nodes[2] * dim,
+                nodes[3] * dim,
+            ];
+            self.features_at(&weights, &at, 4 * groups..dim, |i, v| out[i * m + p] = v);
         }
     }
 
+    /// The table's first `dim − dim % 4` features regrouped by four (made once per grid):
+    /// entry `node · (dim / 4) + g` holds, for each node value k (f, h·fx, h·fy, h²·fxy), that
+    /// value of features 4g to 4g + 3.
+    fn lanes(&self, dim: usize) -> &[[[f64; 4]; 4]] {
+        self.lanes.get_or_init(|| {
+            let groups = dim / 4;
+            if groups == 0 {
+                return Vec::new();
+            }
+            let mut grouped = Vec::with_capacity(self.table.len() / dim * groups);
+            for node in self.table.chunks_exact(dim) {
+                for g in 0..groups {
+                    let four = &node[4 * g..4 * g + 4];
+                    grouped.push(std::array::from_fn(|k| std::array::from_fn(|l| four[l][k])));
+                }
+            }
+            grouped
+        })
+    }
+
     /// Per corner of `q`'s cell: the weights of f, h·fx, h·fy, h²·fxy (as `Grid::eval` forms
-    /// them) and the corner's first table index.
+    /// them) and the corner's node.
     #[inline(always)]
-    fn value_weights(&self, q: [f64; 2], dim: usize) -> ([[f64; 4]; 4], [usize; 4]) {
+    fn value_weights(&self, q: [f64; 2]) -> ([[f64; 4]; 4], [usize; 4]) {
         let (cell, t) = self.locate(q);
         let (bx, by) = (hermite(t[0]), hermite(t[1]));
         let [hx, hy] = self.step;
@@ -124,10 +145,10 @@ impl Grid {
             let (v0, v1, w0, w1) = (bx[2 * a], bx[2 * a + 1], by[2 * b], by[2 * b + 1]);
             [v0 * w0, hx * v1 * w0, hy * v0 * w1, hx * hy * v1 * w1]
         };
-        let index = |a: usize, b: usize| ((cell[1] + b) * self.nodes[0] + cell[0] + a) * dim;
+        let node = |a: usize, b: usize| (cell[1] + b) * self.nodes[0] + cell[0] + a;
         (
             [weight(0, 0), weight(1, 0), weight(0, 1), weight(1, 1)],
-            [index(0, 0), index(1, 0), index(0, 1), index(1, 1)],
+            [node(0, 0), node(1, 0), node(0, 1), node(1, 1)],
         )
     }
 }

@@ -55,6 +55,7 @@ impl Grid {
             step,
             nodes,
             table,
+            lanes: Arc::default(),
         }
     }
 
