@@ -344,7 +344,9 @@ mod tests {
         )
         .unwrap();
         assert_eq!(parsed, split(3));
-        assert!(toml::to_string(&split(3)).unwrap().contains("max_alternatives = 3"));
+        assert!(toml::to_string(&split(3))
+            .unwrap()
+            .contains("max_alternatives = 3"));
         // Files written with the default read as before: the key is left out.
         let text = toml::to_string(&split(DEFAULT_MAX_ALTERNATIVES)).unwrap();
         assert!(!text.contains("max_alternatives"), "{text}");

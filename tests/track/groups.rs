@@ -183,10 +183,16 @@ fn the_cap_keeps_the_first_alternatives_weighs_only_them_and_counts_them_all() {
     let errors = [0.5, 0.5, 0.25];
     let all = capped_triangle(errors, 3);
     assert_eq!(all.alternatives.len(), 3);
-    assert_eq!((all.alternatives_found, all.flags.alternatives_capped), (3, false));
+    assert_eq!(
+        (all.alternatives_found, all.flags.alternatives_capped),
+        (3, false)
+    );
     for cap in [1, 2] {
         let capped = capped_triangle(errors, cap);
-        assert_eq!((capped.alternatives_found, capped.flags.alternatives_capped), (3, true));
+        assert_eq!(
+            (capped.alternatives_found, capped.flags.alternatives_capped),
+            (3, true)
+        );
         assert_eq!(capped.alternatives.len(), cap);
         // The uncapped list's first ones, each estimated as there.
         for (a, b) in capped.alternatives.iter().zip(&all.alternatives) {
