@@ -182,8 +182,9 @@ impl CheckedTrackSettings {
 
 impl TrackSettings {
     /// Validate: the threshold is not NaN and not negative, `min_size` ≥ 1, `uncertainty_mass` in
-    /// (0, 1], `max_alternatives` in 1..=[`MAX_ALTERNATIVES`] (and left at its default unless
-    /// the policy is splitting).
+    /// (0, 1], `max_alternatives` in 1..=[`MAX_ALTERNATIVES`] (the other policies have no
+    /// alternatives and ignore it: the fit's own trackers take the scenario's settings with
+    /// another policy).
     ///
     /// # Errors
     /// [`TrackError::InvalidSetting`] naming the field and what is accepted.
@@ -210,16 +211,6 @@ impl TrackSettings {
                     "{} is not a number of alternatives: use 1 to {MAX_ALTERNATIVES}",
                     self.max_alternatives
                 ),
-            });
-        }
-        if self.max_alternatives != DEFAULT_MAX_ALTERNATIVES
-            && !matches!(self.selection, SelectionPolicy::Splitting { .. })
-        {
-            return Err(TrackError::InvalidSetting {
-                field: "max_alternatives",
-                reason: "only the splitting policy has alternatives: use it with \
-                         `selection = { policy = \"splitting\", min_size = N }`"
-                    .into(),
             });
         }
         if !(self.uncertainty_mass > 0.0 && self.uncertainty_mass <= 1.0) {
@@ -358,11 +349,12 @@ mod tests {
         );
         assert!(message(split(MAX_ALTERNATIVES + 1)).contains("use 1 to 1024"));
         assert!(split(1).check().is_ok() && split(MAX_ALTERNATIVES).check().is_ok());
-        // A cap beside a policy without alternatives says so.
-        let largest = TrackSettings {
-            max_alternatives: 4,
+        // The other policies ignore it, and the range holds for them too.
+        let largest = |cap| TrackSettings {
+            max_alternatives: cap,
             ..TrackSettings::default()
         };
-        assert!(message(largest).contains("only the splitting policy has alternatives"));
+        assert!(largest(4).check().is_ok());
+        assert!(message(largest(0)).contains("use 1 to 1024"));
     }
 }
