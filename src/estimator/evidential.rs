@@ -266,6 +266,7 @@ impl PoseEstimator for Evidential {
 
 /// The seam's view of one frame of the tracker.
 pub(super) fn pose_estimate(frame: FrameEstimate) -> PoseEstimate {
+    let capped = frame.flags.alternatives_capped;
     PoseEstimate {
         pose: frame.estimate,
         uncertainty_radius: frame.uncertainty.map(|u| u.radius),
@@ -279,6 +280,7 @@ pub(super) fn pose_estimate(frame: FrameEstimate) -> PoseEstimate {
             excluded: frame.flags.excluded,
             fallback: frame.flags.fallback,
             combination_failed: frame.flags.combination_failed,
+            alternatives_capped: capped.then_some(frame.alternatives_found),
             ..EstimateFlags::default()
         },
     }
@@ -461,8 +463,19 @@ mod tests {
             uncertainty: None,
             plausibility: Vec::new(),
             alternatives: Vec::new(),
+            alternatives_found: 0,
             flags: FrameFlags::default(),
         }
+    }
+
+    #[test]
+    fn a_capped_frame_says_how_many_alternatives_it_found() {
+        let mut capped = frame(Some([0.0, 41.0]));
+        capped.alternatives_found = 1648;
+        let words = |f: FrameEstimate| pose_estimate(f).flag_words(&[]);
+        assert_eq!(words(capped.clone()), "");
+        capped.flags.alternatives_capped = true;
+        assert_eq!(words(capped), "alternatives_capped:1648");
     }
 
     #[test]

@@ -225,11 +225,16 @@ pub struct EstimateFlags {
     /// pose is kept for reference, the region covers the whole workspace.
     #[serde(default)]
     pub abstained: bool,
+    /// The splitting policy found more alternatives than its cap (`track.max_alternatives`):
+    /// how many it found; the estimate is drawn from the first ones only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alternatives_capped: Option<usize>,
 }
 
 impl PoseEstimate {
     /// The flags as short words (`missing:…`, `excluded:…`, `fallback`, `combination_failed`,
-    /// `predicted`, `past_rejected`, `no_estimate`) with feature `names`; empty when the frame is clean.
+    /// `predicted`, `past_rejected`, `abstained`, `alternatives_capped:N`, `no_estimate`) with
+    /// feature `names`; empty when the frame is clean.
     pub fn flag_words(&self, names: &[String]) -> String {
         let joined = |list: &[usize]| {
             list.iter()
@@ -259,6 +264,9 @@ impl PoseEstimate {
         }
         if flags.abstained {
             parts.push("abstained".into());
+        }
+        if let Some(found) = flags.alternatives_capped {
+            parts.push(format!("alternatives_capped:{found}"));
         }
         if self.pose.is_none() {
             parts.push("no_estimate".into());

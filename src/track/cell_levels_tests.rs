@@ -5,7 +5,9 @@
 use super::super::group_search::{present_mask, select_group_exhaustive};
 use super::*;
 use crate::evidence::{ConflictLevel, Refining};
-use crate::track::{SelectionPolicy, TrackSettings, TrackedFeature, TrackerModel};
+use crate::track::{
+    FrameEstimate, SelectionPolicy, TrackSettings, TrackedFeature, TrackerModel, MAX_ALTERNATIVES,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -319,4 +321,48 @@ fn splitting_the_bench_frame_looks_ahead_instead_of_listing_the_eligible_groups(
         "{} levels for {alternatives} alternatives",
         levels.calls
     );
+}
+
+#[test]
+fn a_capped_frame_keeps_the_uncapped_frames_first_alternatives_and_counts_them_all() {
+    // The bench's frame scaled down, split into many alternatives of several sizes.
+    let mut rng = ChaCha8Rng::seed_from_u64(35);
+    let (base, [clean, faulty]) = bench_shaped(&mut rng, 14, 30, &[0, 7]);
+    let level = base.full_conflict_level(&clean).unwrap();
+    let tracker = |cap: usize| {
+        let settings = TrackSettings {
+            conflict_threshold: ConflictLevel::from_value(1.05 * level),
+            selection: SelectionPolicy::Splitting { min_size: 2 },
+            max_alternatives: cap,
+            ..TrackSettings::default()
+        };
+        Tracker::new(base.model().clone(), settings.check().unwrap()).unwrap()
+    };
+    let all = tracker(MAX_ALTERNATIVES).track(&faulty).unwrap();
+    let found = all.alternatives.len();
+    let sizes = |e: &FrameEstimate| -> Vec<usize> {
+        e.alternatives.iter().map(|a| a.group.len()).collect()
+    };
+    assert!(
+        found > 5 && sizes(&all)[0] > sizes(&all)[found - 1],
+        "{:?}",
+        sizes(&all)
+    );
+    assert_eq!(
+        (all.alternatives_found, all.flags.alternatives_capped),
+        (found, false)
+    );
+    for cap in [1, 2, found - 1, found, found + 1] {
+        let capped = tracker(cap).track(&faulty).unwrap();
+        let kept = cap.min(found);
+        assert_eq!(
+            capped.alternatives[..],
+            all.alternatives[..kept],
+            "cap {cap}"
+        );
+        assert_eq!(capped.alternatives_found, found);
+        assert_eq!(capped.flags.alternatives_capped, cap < found);
+        // No reliabilities here: the estimate is the first alternative's, capped or not.
+        assert_eq!(capped.estimate, all.estimate);
+    }
 }

@@ -26,6 +26,7 @@ pub use group_search::{members, present_mask, select_group, GroupLevels, GroupMa
 pub use past::{group_beside_past, group_beside_past_with, past_outweighs, PastFrame};
 pub use settings::{
     CheckedTrackSettings, Combine, Discount, PoseRule, SelectionPolicy, TrackSettings,
+    DEFAULT_MAX_ALTERNATIVES, MAX_ALTERNATIVES,
 };
 pub use threshold::{learn_conflict_threshold, quantile_threshold, ThresholdRule};
 pub use tracker::{Alternative, FeatureIssue, FrameEstimate, FrameFlags, Tracker, Uncertainty};

@@ -441,6 +441,7 @@ impl Tracker {
                 uncertainty: Some(uncertainty),
                 plausibility,
                 alternatives: Vec::new(),
+                alternatives_found: 0,
                 flags,
             },
             past_joined: true,

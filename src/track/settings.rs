@@ -129,11 +129,28 @@ pub struct TrackSettings {
     /// Shafer's discounting of each feature before the rule.
     #[serde(skip_serializing_if = "Discount::is_none")]
     pub discount: Discount,
+    /// The splitting policy's cap: a frame estimates and weighs at most this many alternatives,
+    /// the first in the policy's order, and records how many it found (1 to
+    /// [`MAX_ALTERNATIVES`]).
+    #[serde(skip_serializing_if = "is_default_max_alternatives")]
+    pub max_alternatives: usize,
 }
+
+/// The default cap on the splitting policy's alternatives: above the most any frame of the
+/// stored scenarios has, so that their outputs are those of the uncapped policy.
+pub const DEFAULT_MAX_ALTERNATIVES: usize = 16;
+
+/// The largest cap accepted: each alternative holds a plausibility per sample pose (80 kB at
+/// 10,000 poses), and a frame estimates every one it keeps.
+pub const MAX_ALTERNATIVES: usize = 1024;
 
 /// Default fields are left out of files, so files of the defaults read as before.
 fn is_dempster(rule: &Rule) -> bool {
     *rule == Rule::Dempster
+}
+
+fn is_default_max_alternatives(cap: &usize) -> bool {
+    *cap == DEFAULT_MAX_ALTERNATIVES
 }
 
 impl Default for TrackSettings {
@@ -147,6 +164,7 @@ impl Default for TrackSettings {
             combine: Combine::Selected,
             rule: Rule::Dempster,
             discount: Discount::None,
+            max_alternatives: DEFAULT_MAX_ALTERNATIVES,
         }
     }
 }
@@ -164,7 +182,9 @@ impl CheckedTrackSettings {
 
 impl TrackSettings {
     /// Validate: the threshold is not NaN and not negative, `min_size` ≥ 1, `uncertainty_mass` in
-    /// (0, 1].
+    /// (0, 1], `max_alternatives` in 1..=[`MAX_ALTERNATIVES`] (the other policies have no
+    /// alternatives and ignore it: the fit's own trackers take the scenario's settings with
+    /// another policy).
     ///
     /// # Errors
     /// [`TrackError::InvalidSetting`] naming the field and what is accepted.
@@ -182,6 +202,15 @@ impl TrackSettings {
             return Err(TrackError::InvalidSetting {
                 field: "selection.min_size",
                 reason: "must be at least 1".into(),
+            });
+        }
+        if !(1..=MAX_ALTERNATIVES).contains(&self.max_alternatives) {
+            return Err(TrackError::InvalidSetting {
+                field: "max_alternatives",
+                reason: format!(
+                    "{} is not a number of alternatives: use 1 to {MAX_ALTERNATIVES}",
+                    self.max_alternatives
+                ),
             });
         }
         if !(self.uncertainty_mass > 0.0 && self.uncertainty_mass <= 1.0) {
@@ -257,6 +286,7 @@ mod tests {
             combine: Combine::All,
             rule: Rule::Murphy,
             discount: Discount::Fixed(0.25),
+            max_alternatives: DEFAULT_MAX_ALTERNATIVES,
         };
         let text = toml::to_string(&t).unwrap();
         assert_eq!(toml::from_str::<TrackSettings>(&text).unwrap(), t);
@@ -291,5 +321,40 @@ mod tests {
         assert!(bad(|s| s.uncertainty_mass = 0.0).is_err());
         assert!(bad(|s| s.uncertainty_mass = f64::NAN).is_err());
         assert!(bad(|s| s.conflict_threshold = ConflictLevel::Finite(0.0)).is_ok());
+    }
+
+    #[test]
+    fn the_cap_on_alternatives_is_read_checked_and_left_out_of_files_at_its_default() {
+        let split = |cap: usize| TrackSettings {
+            selection: SelectionPolicy::Splitting { min_size: 2 },
+            max_alternatives: cap,
+            ..TrackSettings::default()
+        };
+        let parsed: TrackSettings = toml::from_str(
+            "selection = { policy = \"splitting\", min_size = 2 }\nmax_alternatives = 3\n",
+        )
+        .unwrap();
+        assert_eq!(parsed, split(3));
+        assert!(toml::to_string(&split(3))
+            .unwrap()
+            .contains("max_alternatives = 3"));
+        // Files written with the default read as before: the key is left out.
+        let text = toml::to_string(&split(DEFAULT_MAX_ALTERNATIVES)).unwrap();
+        assert!(!text.contains("max_alternatives"), "{text}");
+        assert_eq!(TrackSettings::default().max_alternatives, 16);
+        let message = |s: TrackSettings| s.check().unwrap_err().to_string();
+        assert_eq!(
+            message(split(0)),
+            "tracker setting `max_alternatives`: 0 is not a number of alternatives: use 1 to 1024"
+        );
+        assert!(message(split(MAX_ALTERNATIVES + 1)).contains("use 1 to 1024"));
+        assert!(split(1).check().is_ok() && split(MAX_ALTERNATIVES).check().is_ok());
+        // The other policies ignore it, and the range holds for them too.
+        let largest = |cap| TrackSettings {
+            max_alternatives: cap,
+            ..TrackSettings::default()
+        };
+        assert!(largest(4).check().is_ok());
+        assert!(message(largest(0)).contains("use 1 to 1024"));
     }
 }

@@ -81,7 +81,7 @@ impl Tracker {
         }
         let Selection {
             chosen,
-            alternatives,
+            mut alternatives,
             fallback,
         } = if self.settings.combine == Combine::All {
             let level = self.level(usable_mask, usable, &mut HashMap::new(), f64::INFINITY);
@@ -98,6 +98,11 @@ impl Tracker {
             flags.no_usable_feature = true;
             return FrameEstimate::without_estimate(flags);
         };
+        // The cap keeps the first alternatives in the policy's order; only they are estimated
+        // and weighed, and the frame says how many there were.
+        let alternatives_found = alternatives.len();
+        flags.alternatives_capped = alternatives_found > self.settings.max_alternatives;
+        alternatives.truncate(self.settings.max_alternatives);
         let mut alts = Vec::with_capacity(alternatives.len());
         let mut alt_plausibility = Vec::with_capacity(alternatives.len());
         for &(k, g) in &alternatives {
@@ -154,6 +159,7 @@ impl Tracker {
             uncertainty: result.as_ref().map(|r| r.2),
             plausibility: result.map(|r| r.1).unwrap_or_default(),
             alternatives: alts,
+            alternatives_found,
             flags,
         }
     }
