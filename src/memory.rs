@@ -184,6 +184,15 @@ pub fn fit_parts(methods: &[Method], settings: &EstimatorSettings, shape: &FitSh
             format!("particle_filter.particles = {p}"),
             p * 64,
         ));
+        // Block evaluation reads the table regrouped by four features: a second copy of the
+        // first `d − d % 4` features' values and slopes.
+        let [gx, gy] = grid_nodes(shape.extent, settings.continuous.grid_spacing);
+        let grouped = d - d % 4;
+        parts.push(part(
+            format!("particle filter's table regrouped by four features, {gx} × {gy} nodes × {grouped} features"),
+            format!("continuous.grid_spacing = {}", settings.continuous.grid_spacing),
+            (gx as u64 * gy as u64).saturating_mul(grouped * 4 * F64),
+        ));
     }
     let row_users = [Method::KNN, Method::EVIDENTIAL, Method::EVIDENTIAL_TEMPORAL];
     if row_users.into_iter().any(uses) {
@@ -492,6 +501,20 @@ mod tests {
         assert_eq!(grid(&all, 4), one, "one grid shared by the three");
         assert_eq!(grid(&all, 64), 16 * one, "64 features: 16 times 4");
         assert_eq!(grid(&[Method::KNN], 4), 0);
+        let regrouped = |features| -> u64 {
+            fit_parts(&[Method::PARTICLE_FILTER], &settings, &shape(features))
+                .iter()
+                .filter(|p| p.what.contains("regrouped"))
+                .map(|p| p.bytes)
+                .sum()
+        };
+        assert_eq!(
+            regrouped(4),
+            one,
+            "the particle filter's copy of four features"
+        );
+        assert_eq!(regrouped(7), one, "only whole groups of four are copied");
+        assert_eq!(grid(&[Method::CONTINUOUS], 8), regrouped(8));
     }
 
     #[test]
