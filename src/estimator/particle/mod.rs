@@ -44,9 +44,10 @@ use crate::range::within;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ParticleSettings {
-    /// Number of particles. 2,000 by default: on `scenarios/time.toml` and a held-out motion
-    /// more gave no lower error, fewer lost the pose on some seeds (docs/results.md, "Tracking over
-    /// time").
+    /// Number of particles. 2,000 by default: fewer lose the pose on some seeds; more leave the
+    /// median error where it is, and only from 20,000 on is the occasional excursion of a few
+    /// tenths of a millimetre gone, at about 6× the frame's cost (docs/results.md, "Tracking
+    /// over time").
     pub particles: usize,
     /// σ (mm/s) of each particle's Gaussian step per axis (the step is σ·Δt); `None` learns it
     /// on the validation motion (`learn::MOTION_NOISE_CANDIDATES`), or takes
