@@ -44,10 +44,10 @@ use crate::range::within;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ParticleSettings {
-    /// Number of particles. 2,000 by default: fewer lose the pose on some seeds; more leave the
-    /// median error where it is, and only from 20,000 on is the occasional excursion of a few
-    /// tenths of a millimetre gone, at about 6× the frame's cost (docs/results.md, "Tracking
-    /// over time").
+    /// Number of particles. 20,000 by default: from there on more leave the error where it is,
+    /// while with 2,000 (the default before) the occasional excursion of a few tenths of a
+    /// millimetre stayed and the fast circle's error was 3× (docs/results.md, "Tracking over
+    /// time"); a frame costs about 6× that of 2,000.
     pub particles: usize,
     /// σ (mm/s) of each particle's Gaussian step per axis (the step is σ·Δt); `None` learns it
     /// on the validation motion (`learn::MOTION_NOISE_CANDIDATES`), or takes
@@ -72,7 +72,7 @@ pub struct ParticleSettings {
 impl Default for ParticleSettings {
     fn default() -> Self {
         Self {
-            particles: 2000,
+            particles: 20_000,
             motion_noise: None,
             outlier_share: None,
             seed: 0,
