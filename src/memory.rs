@@ -141,6 +141,16 @@ pub fn fit_parts(methods: &[Method], settings: &EstimatorSettings, shape: &FitSh
                 (gx as u64 * gy as u64).saturating_mul(3 * F64),
             ));
         }
+        if uses(Method::PARTICLE_FILTER) {
+            // Its block evaluation reads the table regrouped by four features: a second copy
+            // of the first `d − d % 4` features' values and slopes.
+            let grouped = d - d % 4;
+            parts.push(part(
+                format!("particle filter's table regrouped by four features, {gx} × {gy} nodes × {grouped} features"),
+                format!("continuous.grid_spacing = {}", c.grid_spacing),
+                (gx as u64 * gy as u64).saturating_mul(grouped * 4 * F64),
+            ));
+        }
         // Kernel, its factor and the leave-one-out inverse, one feature at a time.
         parts.push(part(
             "continuous surrogate kernel matrices".into(),
@@ -183,15 +193,6 @@ pub fn fit_parts(methods: &[Method], settings: &EstimatorSettings, shape: &FitSh
             format!("particle sets, {p} particles"),
             format!("particle_filter.particles = {p}"),
             p * 64,
-        ));
-        // Block evaluation reads the table regrouped by four features: a second copy of the
-        // first `d − d % 4` features' values and slopes.
-        let [gx, gy] = grid_nodes(shape.extent, settings.continuous.grid_spacing);
-        let grouped = d - d % 4;
-        parts.push(part(
-            format!("particle filter's table regrouped by four features, {gx} × {gy} nodes × {grouped} features"),
-            format!("continuous.grid_spacing = {}", settings.continuous.grid_spacing),
-            (gx as u64 * gy as u64).saturating_mul(grouped * 4 * F64),
         ));
     }
     let row_users = [Method::KNN, Method::EVIDENTIAL, Method::EVIDENTIAL_TEMPORAL];
