@@ -133,7 +133,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("track.selection", "Which coherent group is combined."),
     ("track.selection.policy", "largest_subset, lowest_conflict or splitting."),
     ("track.selection.min_size", "lowest_conflict and splitting: the smallest group considered."),
-    ("track.max_alternatives", "splitting: the alternatives a frame estimates and weighs, the first in the\npolicy's order (1 to 1024, default 16); a frame that found more is flagged\nalternatives_capped:N; the other policies ignore it."),
+    ("track.max_alternatives", "splitting: the alternatives a frame estimates and weighs (1 to 1024, default\n16): the most reliable when the model has group errors, else the first in the\npolicy's order; a frame that found more is flagged alternatives_capped:N; the\nother policies ignore it."),
     ("threshold_rule", "How a conflict threshold is learned: { validation_max = F } (F × the largest\nclean validation level; the default), \"error_weighted\" (paper §4.3), { quantile = Q }."),
     ("threshold_rule.validation_max", "The factor F (at least 1)."),
     ("threshold_rule.quantile", "The quantile Q of the validation levels."),

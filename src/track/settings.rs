@@ -129,8 +129,9 @@ pub struct TrackSettings {
     /// Shafer's discounting of each feature before the rule.
     #[serde(skip_serializing_if = "Discount::is_none")]
     pub discount: Discount,
-    /// The splitting policy's cap: a frame estimates and weighs at most this many alternatives,
-    /// the first in the policy's order, and records how many it found (1 to
+    /// The splitting policy's cap: a frame estimates and weighs at most this many alternatives
+    /// (the most reliable when the model has group errors, else the first in the policy's
+    /// order), and records how many it found (1 to
     /// [`MAX_ALTERNATIVES`]).
     #[serde(skip_serializing_if = "is_default_max_alternatives")]
     pub max_alternatives: usize,

@@ -64,7 +64,7 @@ pub struct FrameFlags {
     /// The chosen group's combination gave no usable plausibility (every sample pose's product
     /// underflowed to zero): there is no estimate.
     pub combination_failed: bool,
-    /// The splitting policy found more alternatives than `max_alternatives`: only the first ones
+    /// The splitting policy found more alternatives than `max_alternatives`: only the kept ones
     /// were estimated and weighed (`FrameEstimate::alternatives_found` says how many there were).
     #[serde(default)]
     pub alternatives_capped: bool,
@@ -136,7 +136,7 @@ pub struct FrameEstimate {
     /// Relative plausibility of every sample pose under the chosen group (empty without estimate).
     pub plausibility: Vec<f64>,
     /// Alternatives of the splitting policy, the chosen one first (empty for other policies):
-    /// the first `max_alternatives` of them, each estimated.
+    /// the `max_alternatives` the cap keeps, each estimated.
     pub alternatives: Vec<Alternative>,
     /// How many maximal eligible groups the splitting policy found in all, `alternatives` and
     /// those beyond the cap (0 for other policies and on fallback).

@@ -94,15 +94,18 @@ impl Tracker {
             self.select(usable, usable_mask)
         };
         flags.fallback = fallback;
-        let Some((level, group)) = chosen else {
+        let Some((mut level, mut group)) = chosen else {
             flags.no_usable_feature = true;
             return FrameEstimate::without_estimate(flags);
         };
-        // The cap keeps the first alternatives in the policy's order; only they are estimated
-        // and weighed, and the frame says how many there were.
+        // Only the alternatives the cap keeps are estimated and weighed; the frame says how
+        // many there were. The chosen group is the first kept, as uncapped.
         let alternatives_found = alternatives.len();
         flags.alternatives_capped = alternatives_found > self.settings.max_alternatives;
-        alternatives.truncate(self.settings.max_alternatives);
+        if flags.alternatives_capped {
+            self.cap_alternatives(&mut alternatives);
+            (level, group) = alternatives[0];
+        }
         let mut alts = Vec::with_capacity(alternatives.len());
         let mut alt_plausibility = Vec::with_capacity(alternatives.len());
         for &(k, g) in &alternatives {
@@ -162,6 +165,33 @@ impl Tracker {
             alternatives_found,
             flags,
         }
+    }
+
+    /// Keeps `max_alternatives` of the splitting policy's `alternatives` (more than that): the
+    /// most reliable (lowest validation error of the group, ties in the policy's order) when the
+    /// model knows every group's error, since weighing trusts those most; otherwise the first.
+    /// The kept ones stay in the policy's order.
+    fn cap_alternatives(&self, alternatives: &mut Vec<(f64, GroupMask)>) {
+        let cap = self.settings.max_alternatives;
+        let errors: Option<Vec<f64>> = alternatives
+            .iter()
+            .map(|&(_, g)| self.model.group_error(g))
+            .collect();
+        let Some(errors) = errors else {
+            alternatives.truncate(cap);
+            return;
+        };
+        let mut by_error: Vec<usize> = (0..alternatives.len()).collect();
+        by_error.sort_by(|&a, &b| errors[a].total_cmp(&errors[b]).then(a.cmp(&b)));
+        let mut kept = vec![false; alternatives.len()];
+        for &i in &by_error[..cap] {
+            kept[i] = true;
+        }
+        let mut index = 0;
+        alternatives.retain(|_| {
+            index += 1;
+            kept[index - 1]
+        });
     }
 }
 

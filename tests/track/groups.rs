@@ -147,15 +147,15 @@ fn a_group_beyond_the_threshold_is_not_combined_though_every_pair_is_within() {
 
 /// The triangle with soft measurements and the given validation error per pair of features.
 fn weighed_triangle(errors: [f64; 3]) -> FrameEstimate {
-    capped_triangle(errors, TrackSettings::default().max_alternatives)
+    capped_triangle(Some(errors), TrackSettings::default().max_alternatives)
 }
 
-/// [`weighed_triangle`] keeping at most `cap` alternatives.
-fn capped_triangle(errors: [f64; 3], cap: usize) -> FrameEstimate {
+/// [`weighed_triangle`] keeping at most `cap` alternatives; without `errors`, no group errors.
+fn capped_triangle(errors: Option<[f64; 3]>, cap: usize) -> FrameEstimate {
     let groups = [vec![0, 1], vec![0, 2], vec![1, 2]];
     let group_errors: Vec<GroupError> = groups
         .iter()
-        .zip(errors)
+        .zip(errors.into_iter().flatten())
         .map(|(g, error)| GroupError {
             features: g.clone(),
             error,
@@ -179,45 +179,51 @@ fn capped_triangle(errors: [f64; 3], cap: usize) -> FrameEstimate {
 }
 
 #[test]
-fn the_cap_keeps_the_first_alternatives_weighs_only_them_and_counts_them_all() {
-    let errors = [0.5, 0.5, 0.25];
+fn the_cap_keeps_the_most_reliable_alternatives_weighs_only_them_and_counts_them_all() {
+    // Uncapped, the third alternative is the most reliable.
+    let errors = Some([0.5, 0.5, 0.25]);
     let all = capped_triangle(errors, 3);
-    assert_eq!(all.alternatives.len(), 3);
+    let reliabilities = |e: &FrameEstimate| -> Vec<Option<f64>> {
+        e.alternatives.iter().map(|a| a.reliability).collect()
+    };
+    assert_eq!(reliabilities(&all), [Some(0.5), Some(0.5), Some(1.0)]);
     assert_eq!(
         (all.alternatives_found, all.flags.alternatives_capped),
         (3, false)
     );
-    for cap in [1, 2] {
+    // Kept: the most reliable, then the first of the two tied, in the policy's order; each
+    // estimated as uncapped.
+    for (cap, kept) in [(1, vec![2]), (2, vec![0, 2])] {
         let capped = capped_triangle(errors, cap);
         assert_eq!(
             (capped.alternatives_found, capped.flags.alternatives_capped),
             (3, true)
         );
         assert_eq!(capped.alternatives.len(), cap);
-        // The uncapped list's first ones, each estimated as there.
-        for (a, b) in capped.alternatives.iter().zip(&all.alternatives) {
+        for (a, &k) in capped.alternatives.iter().zip(&kept) {
+            let b = &all.alternatives[k];
             assert_eq!(
                 (&a.group, a.conflict_level, a.estimate, &a.uncertainty),
                 (&b.group, b.conflict_level, b.estimate, &b.uncertainty)
             );
         }
     }
-    // Uncapped, the third alternative is the most reliable; the two kept are weighed between
-    // themselves, equally, and the estimate leaves the third's pose (0, 1) out.
-    let reliabilities = |e: &FrameEstimate| -> Vec<Option<f64>> {
-        e.alternatives.iter().map(|a| a.reliability).collect()
-    };
-    assert_eq!(reliabilities(&all), [Some(0.5), Some(0.5), Some(1.0)]);
+    // Two kept: weighed between themselves, the third's full say kept; the level is its.
     let two = capped_triangle(errors, 2);
-    assert_eq!(reliabilities(&two), [Some(1.0), Some(1.0)]);
-    assert_eq!(two.group, vec![0, 1, 2]);
-    let (e, full) = (two.estimate.unwrap(), all.estimate.unwrap());
-    assert!(e[0] > e[1] && e[1] < full[1], "{e:?} vs {full:?}");
-    // One kept: nothing to weigh, the first alternative is the estimate.
+    assert_eq!(reliabilities(&two), [Some(0.5), Some(1.0)]);
+    assert_eq!(two.conflict_level, Some(all.alternatives[2].conflict_level));
+    // One kept: nothing to weigh, the most reliable alternative is the estimate and the group.
     let one = capped_triangle(errors, 1);
     assert_eq!(reliabilities(&one), [None]);
-    assert_eq!(one.estimate, Some(one.alternatives[0].estimate));
-    assert_eq!(one.group, one.alternatives[0].group);
+    assert_eq!(one.estimate, Some(all.alternatives[2].estimate));
+    assert_eq!(one.group, all.alternatives[2].group);
+    assert_eq!(one.conflict_level, Some(all.alternatives[2].conflict_level));
+    // Without group errors the cap keeps the first in the policy's order.
+    let unweighed = capped_triangle(None, 3);
+    let first = capped_triangle(None, 1);
+    assert_eq!(first.alternatives.len(), 1);
+    assert_eq!(first.alternatives[0].group, unweighed.alternatives[0].group);
+    assert_eq!(first.estimate, unweighed.estimate);
 }
 
 #[test]
