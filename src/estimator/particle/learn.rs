@@ -9,7 +9,7 @@
 //! is, which the displacements do not show.
 
 use super::ParticleFilter;
-use crate::estimator::motion::motion_error;
+use crate::estimator::motion::motion_error_within;
 use crate::estimator::{EstimatorError, TrainingSet};
 
 /// The σ (mm/s) tried when learning the Gaussian step: from a slow drift to beyond the fastest
@@ -35,18 +35,24 @@ pub(super) fn learn(filter: &mut ParticleFilter, data: &TrainingSet) -> Result<(
         return Ok(());
     }
     let given = filter.file.settings.clone();
+    // The σ search's winning pass, with the ε it ran under: the ε search need not run it again.
+    let mut known = None;
     if given.motion_noise.is_none() {
-        let sigma = lowest(&MOTION_NOISE_CANDIDATES, |sigma| {
+        let (sigma, error) = lowest(&MOTION_NOISE_CANDIDATES, |sigma, bound| {
             filter.file.motion_noise = sigma;
-            motion_error(filter, data)
+            motion_error_within(filter, data, bound)
         })?;
         filter.file.motion_noise = sigma;
         filter.file.motion_noise_learned = true;
+        known = Some((filter.file.outlier_share, error));
     }
     if given.outlier_share.is_none() {
-        let eps = lowest(&OUTLIER_SHARE_CANDIDATES, |eps| {
+        let (eps, _) = lowest(&OUTLIER_SHARE_CANDIDATES, |eps, bound| {
+            if let Some((_, error)) = known.filter(|&(e, _)| e == eps) {
+                return Ok(Some(error));
+            }
             filter.file.outlier_share = eps;
-            motion_error(filter, data)
+            motion_error_within(filter, data, bound)
         })?;
         filter.file.outlier_share = eps;
         filter.file.outlier_share_learned = true;
@@ -54,23 +60,28 @@ pub(super) fn learn(filter: &mut ParticleFilter, data: &TrainingSet) -> Result<(
     Ok(())
 }
 
-/// The candidate with the lowest `error`; ties go to the largest (the broader step, the more
-/// tolerant likelihood), as α's ties go to the most reliable.
+/// The candidate with the lowest `error`, and its error; ties go to the largest (the broader
+/// step, the more tolerant likelihood), as α's ties go to the most reliable. `error(candidate,
+/// bound)` may stop early and give `None` when the candidate's error is above `bound`, the tie
+/// limit of the best so far: such a candidate can be neither the lowest nor a tie, whatever
+/// comes after.
 fn lowest(
     candidates: &[f64],
-    mut error: impl FnMut(f64) -> Result<f64, EstimatorError>,
-) -> Result<f64, EstimatorError> {
-    let errors = candidates
-        .iter()
-        .map(|&c| error(c))
-        .collect::<Result<Vec<_>, _>>()?;
-    let best = errors.iter().copied().fold(f64::INFINITY, f64::min);
+    mut error: impl FnMut(f64, f64) -> Result<Option<f64>, EstimatorError>,
+) -> Result<(f64, f64), EstimatorError> {
+    let mut errors = Vec::with_capacity(candidates.len());
+    let mut best = f64::INFINITY;
+    for &c in candidates {
+        let e = error(c, best * (1.0 + TIE))?.unwrap_or(f64::INFINITY);
+        best = best.min(e);
+        errors.push(e);
+    }
     Ok(candidates
         .iter()
         .zip(&errors)
         .rev()
         .find(|(_, &e)| e <= best * (1.0 + TIE))
-        .map_or(candidates[0], |(&c, _)| c))
+        .map_or((candidates[0], errors[0]), |(&c, &e)| (c, e)))
 }
 
 #[cfg(test)]
@@ -80,13 +91,15 @@ mod tests {
     #[test]
     fn the_lowest_error_wins_and_ties_go_to_the_largest() {
         let errors = [3.0, 1.0, 2.0, 1.0];
+        // As a full pass would: stopped (`None`) when the error is above the bound.
         let pick = |errors: [f64; 4]| {
             let mut k = 0;
-            lowest(&[1.0, 2.0, 4.0, 8.0], |_| {
+            lowest(&[1.0, 2.0, 4.0, 8.0], |_, bound| {
                 k += 1;
-                Ok(errors[k - 1])
+                Ok(Some(errors[k - 1]).filter(|&e| !(e > bound)))
             })
             .unwrap()
+            .0
         };
         assert_eq!(pick(errors), 8.0);
         assert_eq!(pick([3.0, 1.0, 2.0, 1.5]), 2.0);
