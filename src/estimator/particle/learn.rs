@@ -87,20 +87,23 @@ fn lowest(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::cmp::Ordering;
 
     #[test]
     fn the_lowest_error_wins_and_ties_go_to_the_largest() {
         let errors = [3.0, 1.0, 2.0, 1.0];
         // As a full pass would: stopped (`None`) when the error is above the bound.
-        let pick = |errors: [f64; 4]| {
-            let mut k = 0;
-            lowest(&[1.0, 2.0, 4.0, 8.0], |_, bound| {
-                k += 1;
-                Ok(Some(errors[k - 1]).filter(|&e| !(e > bound)))
-            })
-            .unwrap()
-            .0
-        };
+        let pick =
+            |errors: [f64; 4]| {
+                let mut k = 0;
+                lowest(&[1.0, 2.0, 4.0, 8.0], |_, bound| {
+                    k += 1;
+                    Ok(Some(errors[k - 1])
+                        .filter(|e| e.partial_cmp(&bound) != Some(Ordering::Greater)))
+                })
+                .unwrap()
+                .0
+            };
         assert_eq!(pick(errors), 8.0);
         assert_eq!(pick([3.0, 1.0, 2.0, 1.5]), 2.0);
         // Every run failing to estimate (infinite error) keeps the largest candidate.
