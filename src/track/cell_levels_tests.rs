@@ -411,14 +411,14 @@ fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit
     // more than the products on the cells take (those go on numbering tuples).
     let mut rng = ChaCha8Rng::seed_from_u64(36);
     let mut frames = Vec::new();
-    for n in [9, 11] {
+    for n in [16, 17] {
         let (tracker, specs) = random_tracker(&mut rng, n, Constructor::Bayesian);
         for _ in 0..3 {
             let frame = random_frame(&mut rng, &specs);
             frames.push((tracker.clone(), frame));
         }
     }
-    for (n, side, corrupt) in [(12, 40, [0, 6]), (14, 30, [0, 7])] {
+    for (n, side, corrupt) in [(16, 40, [0, 8]), (18, 30, [0, 9])] {
         let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
         frames.push((tracker.clone(), clean));
         frames.push((tracker, faulty));
@@ -456,7 +456,7 @@ fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_sel
     // of the pruned search on the grown levels against every clique on the direct levels.
     let mut rng = ChaCha8Rng::seed_from_u64(37);
     let mut compared = 0;
-    for (n, side, corrupt) in [(14, 30, [0, 7]), (13, 40, [0, 6]), (12, 25, [3, 9])] {
+    for (n, side, corrupt) in [(16, 30, [0, 8]), (17, 40, [0, 6]), (16, 25, [3, 11])] {
         for _frame in 0..2 {
             let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
             let (usable, _) = tracker.measure(&clean).unwrap();
@@ -468,6 +468,7 @@ fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_sel
                 for min_size in [2, 5] {
                     let policy = SelectionPolicy::Splitting { min_size };
                     let mut levels = tracker.cell_levels(&usable);
+                    assert!(levels.look_ahead_first());
                     let pruned = select_group(&mut levels, n, all, policy, threshold);
                     let mut direct = Direct {
                         tracker: &tracker,
