@@ -188,7 +188,8 @@ impl CellProducts {
                     for (u, &su) in states.iter().enumerate() {
                         let c = f.contour[su];
                         self.contour.push(c);
-                        if !(c > 0.0) {
+                        // NaN is not positive either.
+                        if c.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                             self.not_positive[u] |= 1 << i;
                         }
                     }
