@@ -49,6 +49,13 @@ impl GroupLevels for CellLevels<'_> {
         self.tracker.settings.constructor == Constructor::Bayesian
     }
 
+    fn look_ahead_first(&mut self) -> bool {
+        self.tracker.settings.constructor == Constructor::Bayesian
+            && (self.tracker.pair_tuples)
+                .near_repeats(&self.tracker.to_cells)
+                .is_some()
+    }
+
     fn floors_without_one(&mut self, group: GroupMask) -> Option<Vec<f64>> {
         match self.tracker.settings.constructor {
             Constructor::Bayesian => self.bayesian_floors(group),

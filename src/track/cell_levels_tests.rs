@@ -366,3 +366,120 @@ fn a_capped_frame_keeps_the_uncapped_frames_first_alternatives_and_counts_them_a
         assert_eq!(capped.estimate, all.estimate);
     }
 }
+
+/// The Bayesian levels computed directly, one group at a time (`Tracker::bayesian_group_level`,
+/// the general path on underflow): the levels the grown ones must equal bit for bit.
+struct Direct<'a> {
+    tracker: &'a Tracker,
+    usable: &'a [Option<Usable>],
+}
+
+impl GroupLevels for Direct<'_> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        match (&self.usable[i], &self.usable[j]) {
+            (Some(a), Some(b)) => self.tracker.pair_level(i, j, a, b),
+            _ => f64::INFINITY,
+        }
+    }
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        (self.tracker.bayesian_group_level(group, self.usable))
+            .unwrap_or_else(|| self.tracker.general_level(group, self.usable))
+    }
+    fn fallback_feature(&self) -> Option<usize> {
+        self.tracker.fallback_feature(self.usable)
+    }
+}
+
+/// Every group of `all` leaving out at most `out` features, in lexicographic order.
+fn nearly_all(all: GroupMask, out: u32) -> Vec<GroupMask> {
+    let mut groups: Vec<GroupMask> = (0..1u64 << all.count_ones())
+        .map(|bits| {
+            (members(all).enumerate())
+                .filter(|&(k, _)| bits >> k & 1 == 1)
+                .fold(0, |m, (_, i)| m | 1 << i)
+        })
+        .filter(|&g: &GroupMask| g.count_ones() >= 2 && (all & !g).count_ones() <= out)
+        .collect();
+    groups.sort_by(|&a, &b| super::super::group_search::lex_cmp(a, b));
+    groups
+}
+
+#[test]
+fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit() {
+    // Random frames with stuck and outlying features, and the bench's frame scaled down; groups
+    // asked for in lexicographic order (the walk's) and shuffled, leaving out up to one feature
+    // more than the products on the cells take (those go on numbering tuples).
+    let mut rng = ChaCha8Rng::seed_from_u64(36);
+    let mut frames = Vec::new();
+    for n in [16, 17] {
+        let (tracker, specs) = random_tracker(&mut rng, n, Constructor::Bayesian);
+        for _ in 0..3 {
+            let frame = random_frame(&mut rng, &specs);
+            frames.push((tracker.clone(), frame));
+        }
+    }
+    for (n, side, corrupt) in [(16, 40, [0, 8]), (18, 30, [0, 9])] {
+        let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
+        frames.push((tracker.clone(), clean));
+        frames.push((tracker, faulty));
+    }
+    let mut compared = 0;
+    for (tracker, frame) in &frames {
+        let (usable, _) = tracker.measure(frame).unwrap();
+        let all = present_mask(&usable);
+        let mut groups = nearly_all(all, super::super::cell_products::MAX_LEFT_OUT + 1);
+        for shuffled in [false, true] {
+            if shuffled {
+                for k in (1..groups.len()).rev() {
+                    groups.swap(k, rng.random_range(0..=k));
+                }
+            }
+            let mut levels = tracker.cell_levels(&usable);
+            for &g in &groups {
+                let direct = tracker.bayesian_group_level(g, &usable);
+                let grown = levels.tuples.level(tracker, &usable, g);
+                assert_eq!(
+                    grown.map(f64::to_bits),
+                    direct.map(f64::to_bits),
+                    "group {g:b}"
+                );
+                compared += 1;
+            }
+        }
+    }
+    assert!(compared > 10_000, "{compared} levels compared");
+}
+
+#[test]
+fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_selection() {
+    // The alternatives, their order, their levels' bits and their count (`alternatives_found`)
+    // of the pruned search on the grown levels against every clique on the direct levels.
+    let mut rng = ChaCha8Rng::seed_from_u64(37);
+    let mut compared = 0;
+    for (n, side, corrupt) in [(16, 30, [0, 8]), (17, 40, [0, 6]), (16, 25, [3, 11])] {
+        for _frame in 0..2 {
+            let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
+            let (usable, _) = tracker.measure(&clean).unwrap();
+            let all = present_mask(&usable);
+            let level = tracker.raw_level(all, &usable);
+            let (usable, _) = tracker.measure(&faulty).unwrap();
+            for factor in [1.02, 1.05, 1.2, 2.0] {
+                let threshold = ConflictLevel::from_value(factor * level);
+                for min_size in [2, 5] {
+                    let policy = SelectionPolicy::Splitting { min_size };
+                    let mut levels = tracker.cell_levels(&usable);
+                    assert!(levels.look_ahead_first());
+                    let pruned = select_group(&mut levels, n, all, policy, threshold);
+                    let mut direct = Direct {
+                        tracker: &tracker,
+                        usable: &usable,
+                    };
+                    let every = select_group_exhaustive(&mut direct, n, all, policy, threshold);
+                    assert_eq!(pruned, every, "n {n} side {side} ×{factor} min {min_size}");
+                    compared += pruned.alternatives.len();
+                }
+            }
+        }
+    }
+    assert!(compared > 200, "{compared} alternatives compared");
+}

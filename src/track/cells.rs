@@ -5,6 +5,7 @@
 use std::collections::HashMap;
 use std::sync::OnceLock;
 
+use super::cell_products::NearRepeats;
 use super::tracker_model::TrackerModel;
 use super::TrackError;
 use crate::evidence::{Refining, Subset};
@@ -37,6 +38,8 @@ pub(super) struct PairTuples {
     /// Per pair (indexed as `start`), each cell's tuple number, built when first asked for
     /// (empty when the model is too large for them: [`MAX_CELL_TUPLES`]).
     cell_tuples: Vec<OnceLock<Vec<u16>>>,
+    /// The pairs of cells that differ in a few features, built when first asked for.
+    near_repeats: OnceLock<Option<NearRepeats>>,
 }
 
 /// Most cell tuple numbers [`PairTuples::cell_tuples`] keeps over every pair (2 MB): beyond it
@@ -93,7 +96,16 @@ impl PairTuples {
             tuples,
             states,
             cell_tuples,
+            near_repeats: OnceLock::new(),
         }
+    }
+
+    /// The pairs of cells that differ in a few features ([`NearRepeats`]), built on first use;
+    /// `None` when the model is too large for them.
+    pub(super) fn near_repeats(&self, to_cells: &[Refining]) -> Option<&NearRepeats> {
+        (self.near_repeats)
+            .get_or_init(|| NearRepeats::new(to_cells))
+            .as_ref()
     }
 
     /// The number of each cell's tuple of features `i < j` in [`PairTuples::of`]'s list, built

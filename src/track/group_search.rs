@@ -81,6 +81,13 @@ pub trait GroupLevels {
     fn cheap_pairs(&self) -> bool {
         false
     }
+    /// Whether the levels of groups that leave out a few features cost less than growing a
+    /// group by one feature: the splitting search then asks its look-ahead (the group with
+    /// every candidate) before the group's own level, which it no longer needs when the
+    /// look-ahead is eligible.
+    fn look_ahead_first(&mut self) -> bool {
+        false
+    }
     /// Lower bounds on the levels of `group` without each of its members (ascending), each at
     /// most that group's level up to a relative 1e-12, so that the largest subset rules groups
     /// one feature short of a maximum clique out before computing them; `None` without them.
@@ -197,6 +204,7 @@ fn choose(
         every_clique(levels, &adj, usable_mask, policy, threshold)
     } else {
         let cheap_pairs = levels.cheap_pairs();
+        let look_ahead_first = levels.look_ahead_first();
         let mut search = Search {
             levels: &mut *levels,
             adj,
@@ -209,6 +217,7 @@ fn choose(
                 Vec::new()
             },
             features,
+            look_ahead_first,
         };
         match policy {
             SelectionPolicy::LargestSubset => (search.largest(usable_mask), Vec::new()),
@@ -308,6 +317,8 @@ struct Search<'a, L: GroupLevels> {
     /// pairwise test's lookups cheaper than the memo's; empty otherwise.
     pairs: Vec<f64>,
     features: usize,
+    /// [`GroupLevels::look_ahead_first`].
+    look_ahead_first: bool,
 }
 
 impl<L: GroupLevels> Search<'_, L> {

@@ -5,10 +5,10 @@
 //! group's level only grows as features are added, so every larger group is too) or when the
 //! group with every candidate lies inside a group already found. It looks ahead: when the group
 //! with every candidate is an eligible clique, that is the branch's one maximal group and
-//! nothing below it is computed; when not, the walk reuses the tuples grown for it along the
-//! leftmost branch. Groups are recorded after their branch, only when nothing larger in it is
-//! eligible, so the list each branch is checked against stays short. Levels are the memoised
-//! ones of the other policies: each group's level is the same bits whatever came before it.
+//! nothing below it (not even the group's own level) is computed. Groups are recorded after
+//! their branch, only when nothing larger in it is eligible, so the list each branch is checked
+//! against stays short. Levels are the memoised ones of the other policies: each group's level
+//! is the same bits whatever came before it.
 
 use super::{lex_cmp, maximal_cliques, members, sort_alternatives, GroupLevels, GroupMask, Search};
 
@@ -64,29 +64,35 @@ impl<L: GroupLevels> Search<'_, L> {
         if n + candidates.count_ones() < m || found.iter().any(|&f| reach & !f == 0) {
             return false;
         }
+        // Every group below lies inside `reach`: when it is an eligible clique, it is the
+        // branch's one maximal group (from three members on only: below three, a look-ahead
+        // that fails costs more than it saves). Asked first when such groups are cheap
+        // (`GroupLevels::look_ahead_first`): `group` inside it is then eligible too (Theorem
+        // 4.3), so its own level is not needed; otherwise the group's level first rules more
+        // look-aheads out.
+        let clique = candidates != 0
+            && n >= 3
+            && members(candidates).all(|c| candidates & !(self.adj[c] | 1 << c) == 0);
+        let ahead_first = self.look_ahead_first;
+        if ahead_first && clique && self.threshold.admits(self.level(reach)) {
+            found.push(reach);
+            return true;
+        }
         let k = self.level(group);
         if Self::beyond(k, self.threshold.value()) {
             return false;
         }
         let eligible = n >= m && self.threshold.admits(k);
         let mut covered = false;
-        if candidates != 0 {
-            // Every group below lies inside `reach`: when it is an eligible clique, it is the
-            // branch's one maximal group. From three members on, its level grows the tuples of
-            // the leftmost branch, which the walk below reuses when it is not (below three, it
-            // would be computed afresh: 12 % more instructions on the 8-feature faulty frame).
-            let clique =
-                n >= 3 && members(candidates).all(|c| candidates & !(self.adj[c] | 1 << c) == 0);
-            if clique && self.threshold.admits(self.level(reach)) {
-                found.push(reach);
-                covered = true;
-            } else {
-                let mut rest = candidates;
-                while rest != 0 {
-                    let j = rest.trailing_zeros() as usize;
-                    rest &= rest - 1;
-                    covered |= self.split_below(group | 1 << j, rest & self.adj[j], m, found);
-                }
+        if !ahead_first && clique && self.threshold.admits(self.level(reach)) {
+            found.push(reach);
+            covered = true;
+        } else {
+            let mut rest = candidates;
+            while rest != 0 {
+                let j = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                covered |= self.split_below(group | 1 << j, rest & self.adj[j], m, found);
             }
         }
         // Recorded after its branch, and only when nothing larger in it was: the list the

@@ -6,6 +6,7 @@
 //! depend on how the model was trained.
 
 mod cell_levels;
+mod cell_products;
 mod cells;
 mod conflict;
 mod estimate;

@@ -3,6 +3,7 @@
 //! prefix's tuples refined by one feature (one pass over the cells instead of one per member).
 //! Every product and sum is taken in the same order as there, so the levels are bit-identical.
 
+use super::cell_products::CellProducts;
 use super::group_search::{members, GroupMask};
 use super::tracker::{Tracker, Usable};
 
@@ -34,6 +35,8 @@ pub(super) struct TupleStack {
     firsts: Vec<(u32, u32)>,
     /// The largest cell value per tuple ([`TupleStack::agreement`]).
     top: Vec<f64>,
+    /// Groups that leave out a few features, by their products on the cells.
+    products: CellProducts,
 }
 
 /// The largest table of state pairs [`TupleStack::small_agreement`] fills (or twice the
@@ -66,6 +69,7 @@ impl TupleStack {
     pub(super) fn recycle(mut self) {
         let chain = std::mem::take(&mut self.chain);
         self.spare.extend(chain);
+        self.products.recycle();
         // A frame that is being dropped while the thread ends has nowhere to give them back.
         let _ = KEPT.try_with(|kept| {
             if let Ok(mut kept) = kept.try_borrow_mut() {
@@ -87,6 +91,9 @@ impl TupleStack {
         // direct computation is cheaper than building every prefix.
         if self.chain.is_empty() && group.count_ones() > 4 {
             return tracker.bayesian_group_level(group, usable);
+        }
+        if let Some(level) = self.products.level(tracker, usable, group) {
+            return level;
         }
         self.grow(tracker, usable, group)?;
         let tuples = self.chain.last()?;
