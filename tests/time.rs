@@ -113,10 +113,10 @@ fn the_time_scenario_under_occlusion_bursts_meets_the_readme_reading() {
             .fold(f64::INFINITY, f64::min);
         assert!(lowest >= least, "{variant}: lowest ratio {lowest}");
     }
-    // On struck frames: the filter 3.911 mm, the continuous tracker over time 7.274, the
+    // On struck frames: the filter 4.471 mm, the continuous tracker over time 7.274, the
     // evidential one 3.271.
     for (name, measured) in [
-        ("particle_filter", 3.911),
+        ("particle_filter", 4.471),
         ("continuous_temporal", 7.274),
         ("evidential_temporal", 3.271),
     ] {

@@ -78,8 +78,17 @@ pub struct ParticleSettings {
     /// frames. 0.3 by default: in runs with image faults the filter abstained on 6–24 % of the
     /// clean frames while it recovered, on 1 % with it (`scenarios/confidence.toml`, 5
     /// seeds), and no clean-frame error rose on average (0.1 and 0.2 raised the tiles'); 0
-    /// turns it off.
+    /// turns it off. Written only when not the default, so that the scenarios written by
+    /// runs without the filter stay as they were.
+    #[serde(skip_serializing_if = "is_default_recovery")]
     pub recovery_share: f64,
+}
+
+/// The default recovery share: a model file or scenario without the field has it.
+const DEFAULT_RECOVERY_SHARE: f64 = 0.3;
+
+fn is_default_recovery(share: &f64) -> bool {
+    *share == DEFAULT_RECOVERY_SHARE
 }
 
 impl Default for ParticleSettings {
@@ -90,7 +99,7 @@ impl Default for ParticleSettings {
             outlier_share: None,
             seed: 0,
             velocity_share: 0.5,
-            recovery_share: 0.3,
+            recovery_share: DEFAULT_RECOVERY_SHARE,
         }
     }
 }
