@@ -88,7 +88,10 @@ fn temporal(c: &mut Criterion) {
     // With the default recovery share and without it (its cost: the frame's own fit and the
     // weights' correction).
     for (name, recovery_share) in [
-        ("frame/particle_filter 20000", settings.particle_filter.recovery_share),
+        (
+            "frame/particle_filter 20000",
+            settings.particle_filter.recovery_share,
+        ),
         ("frame/particle_filter 20000 without recovery", 0.0),
     ] {
         settings.particle_filter.recovery_share = recovery_share;

@@ -328,7 +328,11 @@ impl<'a> FilterMotion<'a> {
 
     /// p̂, the density the prediction moves the last posterior to (`recover`): uniform over the
     /// box before the first prediction.
-    fn predicted(&self, prediction: Option<&Prediction>, bounds: ([f64; 2], [f64; 2])) -> Predicted {
+    fn predicted(
+        &self,
+        prediction: Option<&Prediction>,
+        bounds: ([f64; 2], [f64; 2]),
+    ) -> Predicted {
         match (prediction, self.cloud) {
             (Some(p), Some((mean, covariance))) => Predicted::moved(
                 mean,

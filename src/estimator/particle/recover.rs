@@ -90,7 +90,9 @@ impl Guess {
 }
 
 fn mahalanobis2(precision: &[[f64; 2]; 2], d: [f64; 2]) -> f64 {
-    precision[0][0] * d[0] * d[0] + 2.0 * precision[0][1] * d[0] * d[1] + precision[1][1] * d[1] * d[1]
+    precision[0][0] * d[0] * d[0]
+        + 2.0 * precision[0][1] * d[0] * d[1]
+        + precision[1][1] * d[1] * d[1]
 }
 
 /// p̂, the predicted density, approximated from the last posterior's moments.
@@ -229,7 +231,14 @@ mod tests {
     #[test]
     fn the_correction_is_flat_away_from_the_guess_and_small_where_the_prediction_is_not() {
         let guess = Guess::new([0.0, 0.0], [[1e-4, 0.0], [0.0, 1e-4]]).unwrap();
-        let predicted = Predicted::moved([5.0, 0.0], [[1e-4, 0.0], [0.0, 1e-4]], [0.0; 2], 0.05, 1.0, 0.5);
+        let predicted = Predicted::moved(
+            [5.0, 0.0],
+            [[1e-4, 0.0], [0.0, 1e-4]],
+            [0.0; 2],
+            0.05,
+            1.0,
+            0.5,
+        );
         let mixture = Mixture {
             guess,
             predicted,
@@ -241,7 +250,14 @@ mod tests {
         assert_eq!(mixture.correction([0.0, 0.0]), 0.0);
         // Within the reach's disc: below 1/(1 − β), above 0.
         let near = Mixture {
-            predicted: Predicted::moved([0.5, 0.0], [[1e-4, 0.0], [0.0, 1e-4]], [0.0; 2], 0.05, 1.0, 0.5),
+            predicted: Predicted::moved(
+                [0.5, 0.0],
+                [[1e-4, 0.0], [0.0, 1e-4]],
+                [0.0; 2],
+                0.05,
+                1.0,
+                0.5,
+            ),
             ..mixture
         };
         let c = near.correction([0.0, 0.0]);
