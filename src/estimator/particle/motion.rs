@@ -289,7 +289,11 @@ impl<'a> FilterMotion<'a> {
         }
         let n = self.weights.len();
         let pool = self.pool.as_ref().filter(|_| self.threads);
-        let (weights, logs) = (Disjoint::new(&mut self.weights), &self.logs);
+        let (weights, logs) = (
+            Disjoint::new(&mut self.weights),
+            Disjoint::new(&mut self.logs),
+        );
+        let (mixture, particles) = (self.mixture.as_ref(), &self.particles);
         each_chunk(
             pool,
             &mut self.outcome,
@@ -297,9 +301,16 @@ impl<'a> FilterMotion<'a> {
             &|chunk, _| {
                 let range = chunk * WEIGHT_CHUNK..((chunk + 1) * WEIGHT_CHUNK).min(n);
                 // SAFETY: each chunk takes its own range.
-                let weights = unsafe { weights.range(range.clone()) };
-                for (w, l) in weights.iter_mut().zip(&logs[range]) {
+                let (weights, logs) =
+                    unsafe { (weights.range(range.clone()), logs.range(range.clone())) };
+                for (w, l) in weights.iter_mut().zip(&*logs) {
                     *w *= exp(l - max);
+                }
+                // With a mixture, each log-likelihood (used) gives way to the particle's p̂/q.
+                if let Some(mixture) = mixture {
+                    for (l, p) in logs.iter_mut().zip(&particles[range]) {
+                        *l = mixture.correction(*p);
+                    }
                 }
             },
         );
@@ -313,7 +324,7 @@ impl<'a> FilterMotion<'a> {
         // The score stays −ln of the mixture's predictive likelihood (the total); the weights
         // take p̂/q, normalised by the correction, so the posterior is the filter's.
         let divisor = match &self.mixture {
-            Some(mixture) if mixture.correct(&mut self.weights, &self.particles) => 1.0,
+            Some(_) if Mixture::correct(&mut self.weights, &self.logs) => 1.0,
             _ => total,
         };
         // Normalised in the same pass as the estimate's sums (`moments`).

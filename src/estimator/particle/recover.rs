@@ -188,18 +188,18 @@ impl Mixture {
         predicted / (keep * predicted + self.share * g)
     }
 
-    /// Multiplies each weight by p̂/q and normalises; `false` (weights untouched) when the
-    /// corrected weights sum to nothing.
-    pub(super) fn correct(&self, weights: &mut [f64], particles: &[[f64; 2]]) -> bool {
+    /// Multiplies each weight by its p̂/q (`corrections`, from [`Mixture::correction`]) and
+    /// normalises; `false` (weights untouched) when the corrected weights sum to nothing.
+    pub(super) fn correct(weights: &mut [f64], corrections: &[f64]) -> bool {
         let mut total = 0.0;
-        for (w, p) in weights.iter().zip(particles) {
-            total += w * self.correction(*p);
+        for (w, c) in weights.iter().zip(corrections) {
+            total += w * c;
         }
         if !(total > 0.0 && total.is_finite()) {
             return false;
         }
-        for (w, p) in weights.iter_mut().zip(particles) {
-            *w *= self.correction(*p) / total;
+        for (w, c) in weights.iter_mut().zip(corrections) {
+            *w *= c / total;
         }
         true
     }
@@ -263,7 +263,11 @@ mod tests {
         let c = near.correction([0.0, 0.0]);
         assert!(c > 0.0 && c < 1.0 / 0.9, "{c}");
         let mut weights = vec![0.5, 0.5];
-        assert!(near.correct(&mut weights, &[[0.0, 0.0], [0.5, 0.0]]));
+        let corrections: Vec<f64> = [[0.0, 0.0], [0.5, 0.0]]
+            .iter()
+            .map(|&p| near.correction(p))
+            .collect();
+        assert!(Mixture::correct(&mut weights, &corrections));
         assert!((weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!(weights[0] < weights[1]);
     }
