@@ -85,20 +85,31 @@ fn temporal(c: &mut Criterion) {
         }
     }
     settings.particle_filter.particles = 20_000;
-    let filter = Method::PARTICLE_FILTER.fit(&settings, &data).expect("fits");
-    group.bench_function("frame/particle_filter 20000", |b| {
-        let mut motion = filter.start_motion();
-        let mut k = 0;
-        b.iter(|| {
-            if k == frames.len() {
-                motion = filter.start_motion();
-                k = 0;
-            }
-            let (t, row) = &frames[k];
-            k += 1;
-            black_box(motion.next(*t, row).expect("tracks"))
+    // With the default recovery share and without it (its cost: the frame's own fit and the
+    // weights' correction).
+    for (name, recovery_share) in [
+        (
+            "frame/particle_filter 20000",
+            settings.particle_filter.recovery_share,
+        ),
+        ("frame/particle_filter 20000 without recovery", 0.0),
+    ] {
+        settings.particle_filter.recovery_share = recovery_share;
+        let filter = Method::PARTICLE_FILTER.fit(&settings, &data).expect("fits");
+        group.bench_function(name, |b| {
+            let mut motion = filter.start_motion();
+            let mut k = 0;
+            b.iter(|| {
+                if k == frames.len() {
+                    motion = filter.start_motion();
+                    k = 0;
+                }
+                let (t, row) = &frames[k];
+                k += 1;
+                black_box(motion.next(*t, row).expect("tracks"))
+            });
         });
-    });
+    }
     group.finish();
 }
 

@@ -15,6 +15,7 @@ use rand_distr::StandardNormal;
 use super::likelihood::{exp, BlockScratch, FrameLikelihood, BLOCK};
 use super::pool::{Disjoint, Outcome, Pool};
 use super::radius::WeightedRadius;
+use super::recover::{Guess, Mixture, Predicted};
 use super::ParticleFilter;
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::VelocityLine;
@@ -61,6 +62,9 @@ pub(super) struct FilterMotion<'a> {
     resampled: Vec<[f64; 2]>,
     /// The weighted mean and the sum of the squared weights, when the update took them.
     moments: Option<([f64; 2], f64)>,
+    /// The last posterior's mean and covariance, and this frame's recovery mixture (`recover`).
+    cloud: Option<([f64; 2], [[f64; 2]; 2])>,
+    mixture: Option<Mixture>,
     /// The second thread, from `PARALLEL_FROM` particles; whether it is used this frame, and
     /// whether it goes unused after frames that found it slow (`adaptive`): for so many more
     /// frames (`serial_frames`), the last such pause (`backoff`), and the frame's jobs so far.
@@ -72,21 +76,24 @@ pub(super) struct FilterMotion<'a> {
     outcome: Outcome,
 }
 
-/// One particle's random draw for the prediction: its Gaussian step (in σ) along the line, or
-/// the uniform numbers of its point in the disc of the reach.
+/// One particle's random draw for the prediction: its Gaussian step (in σ) along the line,
+/// the uniform numbers of its point in the disc of the reach, or its standard normals about
+/// the frame's own estimate (`recover`).
 #[derive(Clone, Copy)]
 enum Draw {
     Line([f64; 2]),
     Disc([f64; 2]),
+    Guess([f64; 2]),
 }
 
 /// The frame's prediction: the Gaussian step's spread (mm), the disc's radius (mm), the line's
-/// shift, and the box the particles stay in.
+/// shift, the box the particles stay in, and the frame's own estimate when recovering.
 struct Prediction {
     step: f64,
     reach: f64,
     shift: [f64; 2],
     bounds: ([f64; 2], [f64; 2]),
+    guess: Option<Guess>,
 }
 
 impl Prediction {
@@ -104,6 +111,7 @@ impl Prediction {
                 let angle = std::f64::consts::TAU * v;
                 [p[0] + r * angle.cos(), p[1] + r * angle.sin()]
             }
+            Draw::Guess(d) => self.guess.map_or(p, |g| g.point(d)),
         };
         [moved[0].clamp(lo[0], hi[0]), moved[1].clamp(lo[1], hi[1])]
     }
@@ -167,6 +175,8 @@ impl<'a> FilterMotion<'a> {
             radius: Mutex::new(WeightedRadius::with_capacity(n)),
             resampled: Vec::with_capacity(n),
             moments: None,
+            cloud: None,
+            mixture: None,
             pool: two.then(|| filter.workers.take()).flatten(),
             threads: false,
             adaptive: false,
@@ -221,6 +231,7 @@ impl<'a> FilterMotion<'a> {
             self.draws.resize(n, Draw::Line([0.0; 2]));
         }
         let share = self.filter.file.settings.velocity_share;
+        let recovery = self.mixture.as_ref().map_or(0.0, |m| m.share);
         let (rng, drawn) = (Mutex::new(&mut self.rng), AtomicUsize::new(0));
         let draws = Disjoint::new(&mut self.draws);
         let (particles, logs) = (
@@ -237,7 +248,7 @@ impl<'a> FilterMotion<'a> {
             first + n.div_ceil(BLOCK),
             &|chunk, thread| {
                 if chunk < first {
-                    draw_blocks(&mut lock(&rng), share, &draws, n, &drawn);
+                    draw_blocks(&mut lock(&rng), (share, recovery), &draws, n, &drawn);
                     return;
                 }
                 let block = chunk - first;
@@ -278,7 +289,11 @@ impl<'a> FilterMotion<'a> {
         }
         let n = self.weights.len();
         let pool = self.pool.as_ref().filter(|_| self.threads);
-        let (weights, logs) = (Disjoint::new(&mut self.weights), &self.logs);
+        let (weights, logs) = (
+            Disjoint::new(&mut self.weights),
+            Disjoint::new(&mut self.logs),
+        );
+        let (mixture, particles) = (self.mixture.as_ref(), &self.particles);
         each_chunk(
             pool,
             &mut self.outcome,
@@ -286,9 +301,16 @@ impl<'a> FilterMotion<'a> {
             &|chunk, _| {
                 let range = chunk * WEIGHT_CHUNK..((chunk + 1) * WEIGHT_CHUNK).min(n);
                 // SAFETY: each chunk takes its own range.
-                let weights = unsafe { weights.range(range.clone()) };
-                for (w, l) in weights.iter_mut().zip(&logs[range]) {
+                let (weights, logs) =
+                    unsafe { (weights.range(range.clone()), logs.range(range.clone())) };
+                for (w, l) in weights.iter_mut().zip(&*logs) {
                     *w *= exp(l - max);
+                }
+                // With a mixture, each log-likelihood (used) gives way to the particle's p̂/q.
+                if let Some(mixture) = mixture {
+                    for (l, p) in logs.iter_mut().zip(&particles[range]) {
+                        *l = mixture.correction(*p);
+                    }
                 }
             },
         );
@@ -299,14 +321,43 @@ impl<'a> FilterMotion<'a> {
         if !(total > 0.0 && total.is_finite()) {
             return None;
         }
+        // The score stays −ln of the mixture's predictive likelihood (the total); the weights
+        // take p̂/q, normalised by the correction, so the posterior is the filter's.
+        let divisor = match &self.mixture {
+            Some(_) if Mixture::correct(&mut self.weights, &self.logs) => 1.0,
+            _ => total,
+        };
         // Normalised in the same pass as the estimate's sums (`moments`).
         let (mut mean, mut squares) = ([0.0; 2], 0.0);
         for (w, p) in self.weights.iter_mut().zip(&self.particles) {
-            *w /= total;
+            *w /= divisor;
             (mean, squares) = add_moments(mean, squares, *w, p);
         }
         self.moments = Some((mean, squares));
         Some(-(total.ln() + max))
+    }
+
+    /// p̂, the density the prediction moves the last posterior to (`recover`): uniform over the
+    /// box before the first prediction.
+    fn predicted(
+        &self,
+        prediction: Option<&Prediction>,
+        bounds: ([f64; 2], [f64; 2]),
+    ) -> Predicted {
+        match (prediction, self.cloud) {
+            (Some(p), Some((mean, covariance))) => Predicted::moved(
+                mean,
+                covariance,
+                p.shift,
+                p.step,
+                p.reach,
+                self.filter.file.settings.velocity_share,
+            ),
+            _ => {
+                let (lo, hi) = bounds;
+                Predicted::Uniform((hi[0] - lo[0]) * (hi[1] - lo[1]))
+            }
+        }
     }
 
     /// Resamples when the effective sample size 1/`squares` (the sum of the squared weights)
@@ -374,12 +425,14 @@ impl Drop for FilterMotion<'_> {
 }
 
 /// Each of the `n` particles' draws into `draws`, in the order of the serial filter: the share
-/// `velocity_share` of the particles takes the line and a Gaussian step, the others a point of
-/// the disc (the line's share is precise, the others keep the filter from losing a pose that
-/// leaves the line). Each block's end is stored in `drawn` once its draws are written.
+/// `recovery` of the particles is drawn about the frame's own estimate (none drawn for it when
+/// 0); of the others, the share `velocity_share` takes the line and a Gaussian step, the
+/// others a point of the disc (the line's share is precise, the others keep the filter from
+/// losing a pose that leaves the line). Each block's end is stored in `drawn` once its draws
+/// are written.
 fn draw_blocks(
     rng: &mut ChaCha8Rng,
-    velocity_share: f64,
+    (velocity_share, recovery): (f64, f64),
     draws: &Disjoint<'_, Draw>,
     n: usize,
     drawn: &AtomicUsize,
@@ -397,7 +450,11 @@ fn draw_blocks(
         let end = (start + BLOCK).min(n);
         // SAFETY: not yet published, so no other chunk reads these draws.
         for draw in unsafe { draws.range(start..end) } {
-            *draw = if rng.random::<f64>() < velocity_share {
+            *draw = if recovery > 0.0 && rng.random::<f64>() < recovery {
+                let dx: f64 = rng.sample(StandardNormal);
+                let dy: f64 = rng.sample(StandardNormal);
+                Draw::Guess([dx, dy])
+            } else if rng.random::<f64>() < velocity_share {
                 let dx: f64 = rng.sample(StandardNormal);
                 let dy: f64 = rng.sample(StandardNormal);
                 Draw::Line([dx, dy])
@@ -453,7 +510,13 @@ impl MotionTracker for FilterMotion<'_> {
             .map(|(i, v)| v.filter(|_| scales[i] > 0.0))
             .collect();
         self.start_frame();
-        let prediction = self.last.map(|last| {
+        let usable = values.iter().any(Option::is_some);
+        let recovery = self.filter.file.settings.recovery_share;
+        let guess = (recovery > 0.0 && usable)
+            .then(|| Guess::of_frame(self.filter, features))
+            .flatten();
+        let bounds = self.filter.maps.sample_bounds();
+        let mut prediction = self.last.map(|last| {
             let interval = (time - last).max(0.0);
             let shift = self.line.shift(interval);
             let mut noise = self.filter.file.motion_noise;
@@ -465,11 +528,26 @@ impl MotionTracker for FilterMotion<'_> {
                 step: noise * interval,
                 reach: self.filter.file.max_speed * interval,
                 shift,
-                bounds: self.filter.maps.sample_bounds(),
+                bounds,
+                guess,
             }
         });
+        self.mixture = guess.map(|guess| Mixture {
+            guess,
+            predicted: self.predicted(prediction.as_ref(), bounds),
+            share: recovery,
+        });
+        if prediction.is_none() && guess.is_some() {
+            // The first frame: the particles stay, but a share is drawn about the estimate.
+            prediction = Some(Prediction {
+                step: 0.0,
+                reach: 0.0,
+                shift: [0.0; 2],
+                bounds,
+                guess,
+            });
+        }
         self.last = Some(time);
-        let usable = values.iter().any(Option::is_some);
         if usable {
             self.likelihood.prepare(
                 &values,
@@ -483,6 +561,7 @@ impl MotionTracker for FilterMotion<'_> {
         }
         let score = if usable { self.update() } else { None };
         let (pose, radius, covariance, squares) = self.estimate();
+        self.cloud = Some((pose, covariance));
         self.line.remember(time, score.map(|_| pose), false);
         self.resample_if_degenerate(squares);
         self.end_frame();

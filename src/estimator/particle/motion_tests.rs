@@ -75,6 +75,50 @@ fn two_threads_give_every_bit_of_one_over_a_struck_motion() {
     }
 }
 
+#[test]
+fn the_recovery_share_brings_the_cloud_back_after_struck_frames() {
+    use rand::SeedableRng;
+    let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
+    // A slow path; every fifth frame shows the features of a pose 1.5 mm away, which drag
+    // the cloud (and the velocity line) there.
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let frames: Vec<(f64, [f64; 2], Vec<Option<f64>>)> = (0..80)
+        .map(|k| {
+            let t = k as f64 / 20.0;
+            let q = [4.0 * (0.8 * t).sin(), 47.5 + 4.0 * (0.5 * t).sin()];
+            let shown = if k % 5 == 4 { [q[0] + 1.5, q[1]] } else { q };
+            (t, q, feature_row(6, shown, 0.01, &mut rng))
+        })
+        .collect();
+    // Mean error on the clean frames right after a struck one.
+    let after_struck = |recovery_share: f64| {
+        let settings = ParticleSettings {
+            particles: 2_000,
+            motion_noise: Some(1.0),
+            outlier_share: Some(0.001),
+            recovery_share,
+            ..ParticleSettings::default()
+        };
+        let filter =
+            ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps.clone(), 4)
+                .unwrap();
+        let mut motion = FilterMotion::with_threads(&filter, false);
+        let mut errors = Vec::new();
+        for (k, (t, q, row)) in frames.iter().enumerate() {
+            let pose = motion.next(*t, row).unwrap().pose.unwrap();
+            if k % 5 == 0 && k > 0 {
+                errors.push(((pose[0] - q[0]).powi(2) + (pose[1] - q[1]).powi(2)).sqrt());
+            }
+        }
+        errors.iter().sum::<f64>() / errors.len() as f64
+    };
+    let (off, on) = (after_struck(0.0), after_struck(0.3));
+    assert!(
+        on < 0.5 * off && on < 0.1,
+        "with recovery {on} mm, without {off} mm"
+    );
+}
+
 mod timing {
     use super::super::*;
     use crate::estimator::test_maps::{feature_row, fitted_continuous};
