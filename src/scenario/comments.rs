@@ -169,7 +169,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("particle_filter.particles", "Number of particles."),
     ("particle_filter.seed", "Picks the filter's stream under the master seed."),
     ("particle_filter.velocity_share", "Share of particles moved along the velocity line."),
-    ("particle_filter.recovery_share", "Share of particles drawn about the frame's own estimate (0: off)."),
+    ("particle_filter.recovery_share", "Share of particles drawn about the frame's own estimate (default 0: off)."),
     ("confidence", "Every method's regions and abstentions, learned on the calibration motion."),
     ("confidence.coverage", "Share of clean frames the regions hold."),
     ("confidence.abstain_share", "Share of clean calibration frames whose detection score may abstain."),

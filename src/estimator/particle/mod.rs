@@ -75,17 +75,16 @@ pub struct ParticleSettings {
     /// Share β of the particles drawn each frame around the frame's own estimate (the maps'
     /// single-frame fit), their weights corrected by the mixture's density so that the
     /// posterior stays the filter's (`recover`): what brings the cloud back after struck
-    /// frames. 0.3 by default: in runs with image faults the filter abstained on 6–24 % of the
-    /// clean frames while it recovered, on 1 % with it (`scenarios/confidence.toml`, 5
-    /// seeds), and no clean-frame error rose on average (0.1 and 0.2 raised the tiles'); 0
-    /// turns it off. Written only when not the default, so that the scenarios written by
-    /// runs without the filter stay as they were.
+    /// frames. Off (0) by default: 0.3 cut the clean frames it abstains on in runs with image
+    /// faults from 6–24 % to 1 % (`scenarios/confidence.toml`, 5 seeds) but raised its error
+    /// on struck frames and a frame's cost by a quarter (docs/results.md, "Tracking over
+    /// time"). Written only when not the default, so that files stay as they were.
     #[serde(skip_serializing_if = "is_default_recovery")]
     pub recovery_share: f64,
 }
 
 /// The default recovery share: a model file or scenario without the field has it.
-const DEFAULT_RECOVERY_SHARE: f64 = 0.3;
+const DEFAULT_RECOVERY_SHARE: f64 = 0.0;
 
 fn is_default_recovery(share: &f64) -> bool {
     *share == DEFAULT_RECOVERY_SHARE
