@@ -33,6 +33,13 @@ pub struct ConfidenceSettings {
     pub abstain_share: f64,
     /// A region larger than this share of the workspace's area makes the method abstain.
     pub max_region_share: f64,
+    /// The run's render check (simulated scenarios only, off by default): each method but the
+    /// centre also abstains where the robot rendered at its estimate differs from the frame's
+    /// silhouette by more pixels than on `abstain_share` of its clean calibration frames
+    /// (`crate::experiment::RenderCheck`). The harness applies it; fits and model files do not
+    /// carry it.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub render_check: bool,
 }
 
 impl Default for ConfidenceSettings {
@@ -41,6 +48,7 @@ impl Default for ConfidenceSettings {
             coverage: 0.9,
             abstain_share: 0.01,
             max_region_share: 0.5,
+            render_check: false,
         }
     }
 }
@@ -88,7 +96,7 @@ pub struct Calibration {
 }
 
 /// The ⌈(n+1)·share⌉-th smallest of `values` (non-finite ones rank last); `None` past the end.
-fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
+pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
     let mut sorted: Vec<f64> = values
         .iter()
         .map(|&v| if v.is_nan() { f64::INFINITY } else { v })
@@ -226,6 +234,12 @@ impl Calibration {
         }
     }
 
+    /// Makes `estimate` abstain: the pose stays, the region covers the whole workspace.
+    pub fn abstain(&self, estimate: &mut PoseEstimate) {
+        estimate.region = Some(self.workspace_region());
+        estimate.flags.abstained = true;
+    }
+
     /// Why the method should abstain on `estimate` before its region is drawn, if it should.
     fn evidence_fails(&self, estimate: &PoseEstimate) -> bool {
         let flags = &estimate.flags;
@@ -244,8 +258,7 @@ impl Calibration {
         // A method that states no covariance (the centre) gives no region, but may abstain.
         let Some(covariance) = estimate.covariance else {
             if self.evidence_fails(estimate) {
-                estimate.region = Some(self.workspace_region());
-                estimate.flags.abstained = true;
+                self.abstain(estimate);
             }
             return;
         };
@@ -268,10 +281,7 @@ impl Calibration {
             Some(r) if r.area <= self.max_region_area && !self.evidence_fails(estimate) => {
                 estimate.region = Some(r);
             }
-            _ => {
-                estimate.region = Some(self.workspace_region());
-                estimate.flags.abstained = true;
-            }
+            _ => self.abstain(estimate),
         }
     }
 }
