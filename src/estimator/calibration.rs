@@ -17,6 +17,8 @@
 //! back to one feature or its combination failed, or when its region would exceed
 //! `max_region_share` of the workspace.
 
+use std::sync::Arc;
+
 use serde::{Deserialize, Serialize};
 
 use super::{MotionTracker, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet};
@@ -139,6 +141,18 @@ impl Calibration {
         data: &TrainingSet,
         settings: &ConfidenceSettings,
     ) -> Result<Option<Self>, super::EstimatorError> {
+        Ok(Self::learn_with_poses(estimator, data, settings)?.map(|(calibration, _)| calibration))
+    }
+
+    /// [`Calibration::learn`], with the poses the method estimated on those frames.
+    ///
+    /// # Errors
+    /// The estimator's own errors on a validation frame.
+    pub fn learn_with_poses(
+        estimator: &dyn PoseEstimator,
+        data: &TrainingSet,
+        settings: &ConfidenceSettings,
+    ) -> Result<Option<(Self, Vec<Option<[f64; 2]>>)>, super::EstimatorError> {
         let (validation, times) = match (&data.calibration, &data.validation) {
             (Some(calibration), _) => (calibration, data.calibration_times),
             (None, Some(validation)) => (validation, data.validation_times),
@@ -161,11 +175,10 @@ impl Calibration {
                 y_max: hi[1] + pad(lo[1], hi[1]),
             }
         });
-        Ok(Some(Self::from_validation(
-            &estimates,
-            validation.poses,
-            workspace,
-            settings,
+        let calibration = Self::from_validation(&estimates, validation.poses, workspace, settings);
+        Ok(Some((
+            calibration,
+            estimates.iter().map(|e| e.pose).collect(),
         )))
     }
 
@@ -293,12 +306,32 @@ impl Calibration {
 pub struct Calibrated {
     inner: Box<dyn PoseEstimator>,
     calibration: Calibration,
+    /// The poses it estimated on the calibration frames, when it was fitted in this process
+    /// (not in the model file): the harness's render check learns its limit on them.
+    poses: Arc<[Option<[f64; 2]>]>,
 }
 
 impl Calibrated {
     /// `inner` with `calibration`.
     pub fn new(inner: Box<dyn PoseEstimator>, calibration: Calibration) -> Self {
-        Self { inner, calibration }
+        Self {
+            inner,
+            calibration,
+            poses: Arc::new([]),
+        }
+    }
+
+    /// The same with the `poses` it estimated on the calibration frames.
+    pub fn with_poses(self, poses: Vec<Option<[f64; 2]>>) -> Self {
+        Self {
+            poses: poses.into(),
+            ..self
+        }
+    }
+
+    /// The poses it estimated on the calibration frames (empty when read from a model file).
+    pub fn calibration_poses(&self) -> &[Option<[f64; 2]>] {
+        &self.poses
     }
 
     /// The method it calibrates.
@@ -365,7 +398,11 @@ impl PoseEstimator for Calibrated {
         provenance: &crate::model_file::Provenance,
     ) -> Option<Box<dyn PoseEstimator>> {
         let inner = self.inner.with_provenance(provenance)?;
-        Some(Box::new(Self::new(inner, self.calibration.clone())))
+        Some(Box::new(Self {
+            inner,
+            calibration: self.calibration.clone(),
+            poses: Arc::clone(&self.poses),
+        }))
     }
 }
 

@@ -276,15 +276,21 @@ impl Harness {
         rows: &[Vec<Option<f64>>],
         times: &[f64],
     ) -> Result<MethodLimit, EstimatorError> {
-        let calibration = (estimator as &dyn std::any::Any)
-            .downcast_ref::<Calibrated>()
-            .map(|c| c.calibration().clone());
-        let mut motion = estimator.start_motion();
-        let mut mismatches = Vec::with_capacity(self.calibration.len());
-        for ((row, &time), observed) in rows.iter().zip(times).zip(&self.calibration) {
-            let estimate = motion.next(time, row)?;
-            mismatches.push(self.check.mismatch(observed, estimate.pose));
-        }
+        let calibrated = (estimator as &dyn std::any::Any).downcast_ref::<Calibrated>();
+        let calibration = calibrated.map(|c| c.calibration().clone());
+        // The poses its calibration saw, else (a method fitted elsewhere) tracked again.
+        let poses = match calibrated.map(Calibrated::calibration_poses) {
+            Some(poses) if poses.len() == self.calibration.len() => poses.to_vec(),
+            _ => {
+                let mut motion = estimator.start_motion();
+                (rows.iter().zip(times))
+                    .map(|(row, &time)| Ok(motion.next(time, row)?.pose))
+                    .collect::<Result<Vec<_>, EstimatorError>>()?
+            }
+        };
+        let mismatches: Vec<f64> = (poses.iter().zip(&self.calibration))
+            .map(|(&pose, observed)| self.check.mismatch(observed, pose))
+            .collect();
         Ok(MethodLimit {
             limit: render_limit(&mismatches, self.abstain_share),
             calibration,
