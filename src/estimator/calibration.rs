@@ -97,6 +97,9 @@ pub struct Calibration {
     pub validation_abstained: f64,
 }
 
+/// The poses a method estimated on its calibration frames, in order (`None`: no estimate).
+pub type CalibrationPoses = Vec<Option<[f64; 2]>>;
+
 /// The ⌈(n+1)·share⌉-th smallest of `values` (non-finite ones rank last); `None` past the end.
 pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
     let mut sorted: Vec<f64> = values
@@ -152,7 +155,7 @@ impl Calibration {
         estimator: &dyn PoseEstimator,
         data: &TrainingSet,
         settings: &ConfidenceSettings,
-    ) -> Result<Option<(Self, Vec<Option<[f64; 2]>>)>, super::EstimatorError> {
+    ) -> Result<Option<(Self, CalibrationPoses)>, super::EstimatorError> {
         let (validation, times) = match (&data.calibration, &data.validation) {
             (Some(calibration), _) => (calibration, data.calibration_times),
             (None, Some(validation)) => (validation, data.validation_times),

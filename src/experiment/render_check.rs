@@ -28,7 +28,7 @@ use crate::estimator::{
     PoseEstimator,
 };
 use crate::faults::FrameFaults;
-use crate::features::{silhouette_pixels, FeatureRows, SilhouetteConfig};
+use crate::features::{silhouette_pixels, SilhouetteConfig};
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
 use crate::sim::{Camera, FiveBar, Part, Primitive, Scene, SimError, SimSettings};
@@ -255,7 +255,7 @@ impl Harness {
         &self,
         method: Method,
         estimator: &dyn PoseEstimator,
-        calibrating: Option<&(Vec<[f64; 2]>, Vec<f64>, Arc<FeatureRows>)>,
+        calibrating: Option<&super::LabelledMotion>,
     ) -> Result<Option<MethodLimit>, ExperimentError> {
         let Some((_, times, rows)) = calibrating.filter(|_| method.name() != Centre::METHOD) else {
             return Ok(None);
