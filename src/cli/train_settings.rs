@@ -167,6 +167,14 @@ pub(super) fn train_settings(
         estimators: vec![method],
         ..base.with_values(&values)?
     };
+    if scenario.confidence.render_check {
+        // The check renders the simulator's robot at each estimate; recorded frames have no
+        // such model, and a model file no place for its limits.
+        eprintln!(
+            "note: `confidence.render_check` is skipped: `train` fits on recorded frames and \
+             cannot render the robot; only `run` and `sweep` on simulated scenarios use it"
+        );
+    }
     Ok(scenario.check_estimators(&SettingsContext {
         feature_names: names.to_vec(),
         has_validation,

@@ -17,6 +17,8 @@
 //! back to one feature or its combination failed, or when its region would exceed
 //! `max_region_share` of the workspace.
 
+use std::sync::Arc;
+
 use serde::{Deserialize, Serialize};
 
 use super::{MotionTracker, PlausibilityRegion, PoseEstimate, PoseEstimator, TrainingSet};
@@ -33,6 +35,13 @@ pub struct ConfidenceSettings {
     pub abstain_share: f64,
     /// A region larger than this share of the workspace's area makes the method abstain.
     pub max_region_share: f64,
+    /// The run's render check (simulated scenarios only, off by default): each method but the
+    /// centre also abstains where the robot rendered at its estimate differs from the frame's
+    /// silhouette by more pixels than on `abstain_share` of its clean calibration frames
+    /// (`crate::experiment::RenderCheck`). The harness applies it; fits and model files do not
+    /// carry it.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub render_check: bool,
 }
 
 impl Default for ConfidenceSettings {
@@ -41,6 +50,7 @@ impl Default for ConfidenceSettings {
             coverage: 0.9,
             abstain_share: 0.01,
             max_region_share: 0.5,
+            render_check: false,
         }
     }
 }
@@ -87,8 +97,11 @@ pub struct Calibration {
     pub validation_abstained: f64,
 }
 
+/// The poses a method estimated on its calibration frames, in order (`None`: no estimate).
+pub type CalibrationPoses = Vec<Option<[f64; 2]>>;
+
 /// The ⌈(n+1)·share⌉-th smallest of `values` (non-finite ones rank last); `None` past the end.
-fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
+pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
     let mut sorted: Vec<f64> = values
         .iter()
         .map(|&v| if v.is_nan() { f64::INFINITY } else { v })
@@ -131,6 +144,18 @@ impl Calibration {
         data: &TrainingSet,
         settings: &ConfidenceSettings,
     ) -> Result<Option<Self>, super::EstimatorError> {
+        Ok(Self::learn_with_poses(estimator, data, settings)?.map(|(calibration, _)| calibration))
+    }
+
+    /// [`Calibration::learn`], with the poses the method estimated on those frames.
+    ///
+    /// # Errors
+    /// The estimator's own errors on a validation frame.
+    pub fn learn_with_poses(
+        estimator: &dyn PoseEstimator,
+        data: &TrainingSet,
+        settings: &ConfidenceSettings,
+    ) -> Result<Option<(Self, CalibrationPoses)>, super::EstimatorError> {
         let (validation, times) = match (&data.calibration, &data.validation) {
             (Some(calibration), _) => (calibration, data.calibration_times),
             (None, Some(validation)) => (validation, data.validation_times),
@@ -153,11 +178,10 @@ impl Calibration {
                 y_max: hi[1] + pad(lo[1], hi[1]),
             }
         });
-        Ok(Some(Self::from_validation(
-            &estimates,
-            validation.poses,
-            workspace,
-            settings,
+        let calibration = Self::from_validation(&estimates, validation.poses, workspace, settings);
+        Ok(Some((
+            calibration,
+            estimates.iter().map(|e| e.pose).collect(),
         )))
     }
 
@@ -226,6 +250,12 @@ impl Calibration {
         }
     }
 
+    /// Makes `estimate` abstain: the pose stays, the region covers the whole workspace.
+    pub fn abstain(&self, estimate: &mut PoseEstimate) {
+        estimate.region = Some(self.workspace_region());
+        estimate.flags.abstained = true;
+    }
+
     /// Why the method should abstain on `estimate` before its region is drawn, if it should.
     fn evidence_fails(&self, estimate: &PoseEstimate) -> bool {
         let flags = &estimate.flags;
@@ -244,8 +274,7 @@ impl Calibration {
         // A method that states no covariance (the centre) gives no region, but may abstain.
         let Some(covariance) = estimate.covariance else {
             if self.evidence_fails(estimate) {
-                estimate.region = Some(self.workspace_region());
-                estimate.flags.abstained = true;
+                self.abstain(estimate);
             }
             return;
         };
@@ -268,10 +297,7 @@ impl Calibration {
             Some(r) if r.area <= self.max_region_area && !self.evidence_fails(estimate) => {
                 estimate.region = Some(r);
             }
-            _ => {
-                estimate.region = Some(self.workspace_region());
-                estimate.flags.abstained = true;
-            }
+            _ => self.abstain(estimate),
         }
     }
 }
@@ -283,12 +309,32 @@ impl Calibration {
 pub struct Calibrated {
     inner: Box<dyn PoseEstimator>,
     calibration: Calibration,
+    /// The poses it estimated on the calibration frames, when it was fitted in this process
+    /// (not in the model file): the harness's render check learns its limit on them.
+    poses: Arc<[Option<[f64; 2]>]>,
 }
 
 impl Calibrated {
     /// `inner` with `calibration`.
     pub fn new(inner: Box<dyn PoseEstimator>, calibration: Calibration) -> Self {
-        Self { inner, calibration }
+        Self {
+            inner,
+            calibration,
+            poses: Arc::new([]),
+        }
+    }
+
+    /// The same with the `poses` it estimated on the calibration frames.
+    pub fn with_poses(self, poses: Vec<Option<[f64; 2]>>) -> Self {
+        Self {
+            poses: poses.into(),
+            ..self
+        }
+    }
+
+    /// The poses it estimated on the calibration frames (empty when read from a model file).
+    pub fn calibration_poses(&self) -> &[Option<[f64; 2]>] {
+        &self.poses
     }
 
     /// The method it calibrates.
@@ -355,7 +401,11 @@ impl PoseEstimator for Calibrated {
         provenance: &crate::model_file::Provenance,
     ) -> Option<Box<dyn PoseEstimator>> {
         let inner = self.inner.with_provenance(provenance)?;
-        Some(Box::new(Self::new(inner, self.calibration.clone())))
+        Some(Box::new(Self {
+            inner,
+            calibration: self.calibration.clone(),
+            poses: Arc::clone(&self.poses),
+        }))
     }
 }
 

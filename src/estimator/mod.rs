@@ -22,6 +22,7 @@ mod samples;
 mod temporal;
 pub mod test_maps;
 
+pub(crate) use calibration::conformal_quantile;
 pub use calibration::{underlying, Calibrated, Calibration, ConfidenceSettings};
 pub use centre::{Centre, CentreSettings};
 pub(crate) use continuous::grid_nodes;
@@ -225,6 +226,11 @@ pub struct EstimateFlags {
     /// pose is kept for reference, the region covers the whole workspace.
     #[serde(default)]
     pub abstained: bool,
+    /// The harness's render check (`[confidence] render_check`) made it abstain: the robot
+    /// rendered at the estimate differs from the frame's silhouette by more pixels than on the
+    /// method's clean calibration frames (`abstained` is set too).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub render_mismatch: bool,
     /// The splitting policy found more alternatives than its cap (`track.max_alternatives`):
     /// how many it found; the estimate is drawn from the first ones only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -233,7 +239,8 @@ pub struct EstimateFlags {
 
 impl PoseEstimate {
     /// The flags as short words (`missing:…`, `excluded:…`, `fallback`, `combination_failed`,
-    /// `predicted`, `past_rejected`, `abstained`, `alternatives_capped:N`, `no_estimate`) with
+    /// `predicted`, `past_rejected`, `abstained`, `render_mismatch`, `alternatives_capped:N`,
+    /// `no_estimate`) with
     /// feature `names`; empty when the frame is clean.
     pub fn flag_words(&self, names: &[String]) -> String {
         let joined = |list: &[usize]| {
@@ -264,6 +271,9 @@ impl PoseEstimate {
         }
         if flags.abstained {
             parts.push("abstained".into());
+        }
+        if flags.render_mismatch {
+            parts.push("render_mismatch".into());
         }
         if let Some(found) = flags.alternatives_capped {
             parts.push(format!("alternatives_capped:{found}"));

@@ -375,8 +375,10 @@ impl Method {
     ) -> Result<Box<dyn PoseEstimator>, EstimatorError> {
         let fitted = (self.0.fit)(settings, data)?;
         Ok(
-            match Calibration::learn(fitted.as_ref(), data, &settings.confidence)? {
-                Some(calibration) => Box::new(Calibrated::new(fitted, calibration)),
+            match Calibration::learn_with_poses(fitted.as_ref(), data, &settings.confidence)? {
+                Some((calibration, poses)) => {
+                    Box::new(Calibrated::new(fitted, calibration).with_poses(poses))
+                }
                 None => fitted,
             },
         )

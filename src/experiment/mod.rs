@@ -10,10 +10,12 @@
 
 mod fits;
 mod limit;
+mod render_check;
 mod sample;
 mod workbench;
 
 pub use limit::{frame_bounds, noise_model};
+pub use render_check::{render_limit, Observed, RenderCheck};
 pub use sample::{sample_trajectory, SampleTrajectory};
 pub use workbench::{Step, Workbench};
 
@@ -29,7 +31,7 @@ use crate::features::FeatureRows;
 use crate::model_file::Provenance;
 use crate::report::{
     efficiency, ErrorStats, EvidentialSummary, FrameRecord, LimitSummary, MethodSummary,
-    MethodTimings, RunSummary, Timings,
+    MethodTimings, RenderCheckSummary, RunSummary, Timings,
 };
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
@@ -134,6 +136,13 @@ pub fn run(
         None => None,
     };
 
+    // The render check's calibration frames, and then each test frame's silhouette.
+    let render = match s.confidence.render_check {
+        true => Some(render_check::Harness::new(scenario, bench)?),
+        false => None,
+    };
+    let mut observed = Vec::new();
+
     // The test frames: simulated and their features extracted once, for every method; then
     // the faults, if any, each test motion on its own stream.
     let plan = scenario.fault_plan();
@@ -151,6 +160,7 @@ pub fn run(
             progress,
             &mut timings,
         )?;
+        let mut painted = Vec::new();
         let (rows, labels) = if plan.is_empty() {
             (rows, None)
         } else {
@@ -162,7 +172,12 @@ pub fn run(
                     data.images(),
                     &rows,
                     &scales,
-                    &mut |at, images| corrupted_features(set, &data, at, images, bench.threads()),
+                    &mut |at, images| {
+                        if let Some(render) = &render {
+                            painted.extend(render.observe_painted(at, images));
+                        }
+                        corrupted_features(set, &data, at, images, bench.threads())
+                    },
                 )
                 .map_err(|source| ExperimentError::External {
                     what: format!("{label} (with its faults)"),
@@ -171,6 +186,10 @@ pub fn run(
             timings.features += clock.elapsed().as_secs_f64();
             (Arc::new(corrupted.rows), Some(corrupted.labels))
         };
+        if let Some(render) = &render {
+            let data = bench.dataset(&s.sim, motion, seed, &mut |_, _| {})?;
+            observed.push(render.observe_motion(&data, painted, labels.as_deref()));
+        }
         tests.push((label, truth, times, rows, labels));
     }
 
@@ -211,22 +230,30 @@ pub fn run(
         });
         let estimator = fitted.map_err(|source| ExperimentError::Estimator { stage, source })?;
         let clock = Instant::now();
+        let calibrating = calibration.as_ref().or(validation.as_ref());
+        let render_limit = match &render {
+            Some(render) => render.method_limit(method, estimator.as_ref(), calibrating)?,
+            None => None,
+        };
         let mut method_records = Vec::new();
         let mut per_motion = Vec::with_capacity(tests.len());
         let track_stage = format!("track {method}");
         let frames: usize = tests.iter().map(|t| t.3.len()).sum();
-        for (label, truth, times, rows, faults) in &tests {
+        for (k, (label, truth, times, rows, faults)) in tests.iter().enumerate() {
             let mut errors = Vec::new();
             let mut motion = estimator.start_motion();
             for (i, row) in rows.iter().enumerate() {
                 progress(&track_stage, method_records.len(), frames);
-                let estimate =
+                let mut estimate =
                     motion
                         .next(times[i], row)
                         .map_err(|source| ExperimentError::Estimator {
                             stage: format!("{method} on {label}"),
                             source,
                         })?;
+                if let (Some(render), Some(limit)) = (&render, &render_limit) {
+                    render.judge(&mut estimate, &observed[k][i], limit);
+                }
                 let record = FrameRecord::new(
                     method.name(),
                     label,
@@ -247,11 +274,10 @@ pub fn run(
         }
         progress(&track_stage, frames, frames);
         let track_seconds = clock.elapsed().as_secs_f64();
-        methods.push(MethodSummary::new(
-            method.name(),
-            &method_records,
-            per_motion,
-        ));
+        let mut summary = MethodSummary::new(method.name(), &method_records, per_motion);
+        summary.render_check = (render.as_ref().zip(render_limit))
+            .map(|(r, l)| RenderCheckSummary::of(l.limit, r.calibration_frames(), &method_records));
+        methods.push(summary);
         timings.methods.push(MethodTimings {
             method: method.name().to_string(),
             fit_seconds,

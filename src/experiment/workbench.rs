@@ -12,7 +12,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 use super::ExperimentError;
 use crate::dataset::Dataset;
 use crate::estimator::{
-    EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimator, TrainingSet,
+    ConfidenceSettings, EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimator,
+    TrainingSet,
 };
 use crate::external::ExternalError;
 use crate::features::{FeatureConfig, FeatureRows, FeatureSet};
@@ -237,8 +238,12 @@ fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> 
     let header = serde_json::json!({
         "method": method,
         "settings": method_settings,
-        // The shared fit is calibrated (on the calibration or validation motion) at these levels.
-        "confidence": settings.confidence,
+        // The shared fit is calibrated (on the calibration or validation motion) at these levels;
+        // the render check is the harness's, after the fit.
+        "confidence": ConfidenceSettings {
+            render_check: false,
+            ..settings.confidence.clone()
+        },
         "features": data.feature_names,
         "config": data.feature_config,
         "missing_penalty": data.missing_penalty.to_bits(),

@@ -32,7 +32,9 @@ use serde::{Deserialize, Serialize};
 pub use barycentre::{barycentre, Background};
 pub use external::{ExternalFeatureConfig, MissingValues};
 pub use mesh::{analyse_mesh, FeatureSmoothness, MeshAnalysis, MeshOrder};
-pub use silhouette::{extract_silhouette, Polarity, Silhouette, SilhouetteConfig, Threshold};
+pub use silhouette::{
+    extract_silhouette, silhouette_pixels, Polarity, Silhouette, SilhouetteConfig, Threshold,
+};
 pub use size::{distance_from_line, PersistenceDiagram, SizeTable, Window};
 pub use tiles::{TileConfig, TileFeature, MAX_TILES};
 

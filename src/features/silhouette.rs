@@ -183,6 +183,77 @@ pub fn extract_silhouette(
     config: &SilhouetteConfig,
 ) -> Option<Silhouette> {
     let (w, h) = image.dimensions();
+    let (wu, hu) = (w as usize, h as usize);
+    let Largest {
+        labels,
+        width: pw,
+        label: best_label,
+        component: best,
+        level,
+    } = largest_silhouette_component(image, polarity, config)?;
+    // Crop to the component's bounding box plus one pixel of background on every side (in padded
+    // coordinates the box is x0..=x1, so the crop spans x0 − 1..=x1 + 1, always inside the pad).
+    let cw = best.x1 - best.x0 + 3;
+    let ch = best.y1 - best.y0 + 3;
+    let mut crop = vec![0u8; cw * ch];
+    for cy in 1..ch - 1 {
+        let src = &labels[(best.y0 + cy - 1) * pw + best.x0..][..cw - 2];
+        for (d, &l) in crop[cy * cw + 1..][..cw - 2].iter_mut().zip(src) {
+            *d = if l == best_label { 255 } else { 0 };
+        }
+    }
+    let crop = GrayImage::from_raw(cw as u32, ch as u32, crop)?;
+    let contours = find_contours::<i32>(&crop);
+    let outer = contours
+        .into_iter()
+        .find(|c| c.border_type == BorderType::Outer && c.parent.is_none())?;
+    // Crop (cx, cy) is padded (x0 − 1 + cx, …), i.e. image (x0 − 2 + cx, …).
+    let (ox, oy) = (best.x0 as f64 - 2.0, best.y0 as f64 - 2.0);
+    let contour: Vec<[f64; 2]> = outer
+        .points
+        .iter()
+        .map(|p| [f64::from(p.x) + ox, f64::from(p.y) + oy])
+        .collect();
+    if contour.is_empty() {
+        return None;
+    }
+    let touches_border = best.x0 == 1 || best.y0 == 1 || best.x1 == wu || best.y1 == hu;
+    let area = best.area as f64;
+    Some(Silhouette {
+        area: best.area,
+        // Sums are in padded coordinates: shift back by one pixel.
+        centroid: [
+            best.sum_x as f64 / area - 1.0,
+            best.sum_y as f64 / area - 1.0,
+        ],
+        contour,
+        touches_border,
+        level,
+    })
+}
+
+/// The largest component of a thresholded image, labelled in a padded buffer.
+struct Largest {
+    /// Component labels of the padded mask (one pixel of background all round).
+    labels: Vec<u32>,
+    /// The padded row length.
+    width: usize,
+    /// The largest component's label.
+    label: u32,
+    /// Its statistics (padded coordinates).
+    component: Component,
+    /// The grey level that split the image.
+    level: u8,
+}
+
+/// Threshold, optional opening and labelling of [`extract_silhouette`], up to its largest
+/// component (`None` where it finds no silhouette before tracing a contour).
+fn largest_silhouette_component(
+    image: &GrayImage,
+    polarity: Polarity,
+    config: &SilhouetteConfig,
+) -> Option<Largest> {
+    let (w, h) = image.dimensions();
     if w == 0 || h == 0 {
         return None;
     }
@@ -226,49 +297,34 @@ pub fn extract_silhouette(
     if fg == 0 || fg == wu * hu {
         return None;
     }
-    let (labels, best_label, best) = largest_component(&mut mask, pw)?;
-    if best.area < config.min_area.max(1) {
+    let (labels, label, component) = largest_component(&mut mask, pw)?;
+    if component.area < config.min_area.max(1) {
         return None;
     }
-    // Crop to the component's bounding box plus one pixel of background on every side (in padded
-    // coordinates the box is x0..=x1, so the crop spans x0 − 1..=x1 + 1, always inside the pad).
-    let cw = best.x1 - best.x0 + 3;
-    let ch = best.y1 - best.y0 + 3;
-    let mut crop = vec![0u8; cw * ch];
-    for cy in 1..ch - 1 {
-        let src = &labels[(best.y0 + cy - 1) * pw + best.x0..][..cw - 2];
-        for (d, &l) in crop[cy * cw + 1..][..cw - 2].iter_mut().zip(src) {
-            *d = if l == best_label { 255 } else { 0 };
-        }
-    }
-    let crop = GrayImage::from_raw(cw as u32, ch as u32, crop)?;
-    let contours = find_contours::<i32>(&crop);
-    let outer = contours
-        .into_iter()
-        .find(|c| c.border_type == BorderType::Outer && c.parent.is_none())?;
-    // Crop (cx, cy) is padded (x0 − 1 + cx, …), i.e. image (x0 − 2 + cx, …).
-    let (ox, oy) = (best.x0 as f64 - 2.0, best.y0 as f64 - 2.0);
-    let contour: Vec<[f64; 2]> = outer
-        .points
-        .iter()
-        .map(|p| [f64::from(p.x) + ox, f64::from(p.y) + oy])
-        .collect();
-    if contour.is_empty() {
-        return None;
-    }
-    let touches_border = best.x0 == 1 || best.y0 == 1 || best.x1 == wu || best.y1 == hu;
-    let area = best.area as f64;
-    Some(Silhouette {
-        area: best.area,
-        // Sums are in padded coordinates: shift back by one pixel.
-        centroid: [
-            best.sum_x as f64 / area - 1.0,
-            best.sum_y as f64 / area - 1.0,
-        ],
-        contour,
-        touches_border,
+    Some(Largest {
+        labels,
+        width: pw,
+        label,
+        component,
         level,
     })
+}
+
+/// The pixels of the silhouette [`extract_silhouette`] finds in `image` (the same threshold,
+/// opening and largest component), row-major; `None` where it finds none.
+pub fn silhouette_pixels(
+    image: &GrayImage,
+    polarity: Polarity,
+    config: &SilhouetteConfig,
+) -> Option<Vec<bool>> {
+    let w = image.width() as usize;
+    let found = largest_silhouette_component(image, polarity, config)?;
+    let pixels = (found.labels.chunks_exact(found.width))
+        .skip(1)
+        .take(image.height() as usize)
+        .flat_map(|row| row[1..=w].iter().map(|&l| l == found.label))
+        .collect();
+    Some(pixels)
 }
 
 /// Label 8-connected components of a padded `mask` (row length `pw`, zero border, consumed) by
@@ -397,6 +453,21 @@ mod tests {
         for p in &s.contour {
             assert!(p[0] == 10.0 || p[0] == 19.0 || p[1] == 10.0 || p[1] == 29.0);
         }
+    }
+
+    #[test]
+    fn the_silhouette_pixels_are_the_largest_components() {
+        let img = frame(50, 40, |x, y| {
+            (10..20).contains(&x) && (10..30).contains(&y) || (40..44).contains(&x) && y < 4
+        });
+        let cfg = SilhouetteConfig::default();
+        let pixels = silhouette_pixels(&img, B, &cfg).unwrap();
+        assert_eq!(pixels.len(), 50 * 40);
+        let on: Vec<usize> = (0..pixels.len()).filter(|&i| pixels[i]).collect();
+        assert_eq!(on.len(), extract_silhouette(&img, B, &cfg).unwrap().area);
+        // The small component is left out; the rectangle's corners are in.
+        assert!(!pixels[41] && pixels[10 * 50 + 10] && pixels[29 * 50 + 19]);
+        assert!(silhouette_pixels(&GrayImage::new(20, 10), B, &cfg).is_none());
     }
 
     #[test]

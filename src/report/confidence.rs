@@ -224,6 +224,39 @@ impl ConfidenceSummary {
     }
 }
 
+/// What the render check (`[confidence] render_check`) did to one method. Its limit is the
+/// run's: learned on the method's clean calibration frames, kept here, not in the model file
+/// (`track` cannot render).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RenderCheckSummary {
+    /// Mismatches (pixels) above this made the method abstain (`None`: too few calibration
+    /// frames, or the rank fell on an undefined one; then none did).
+    pub limit_px: Option<f64>,
+    /// The calibration frames it was learned on.
+    pub calibration_frames: usize,
+    /// Clean test frames on which the check made the method abstain (`render_mismatch`).
+    pub abstained_clean: usize,
+    /// Corrupted test frames on which it did.
+    pub abstained_corrupted: usize,
+}
+
+impl RenderCheckSummary {
+    /// The summary of one method's `records`, checked against `limit_px`.
+    pub fn of(limit_px: Option<f64>, calibration_frames: usize, records: &[FrameRecord]) -> Self {
+        let flagged = |corrupted: bool| {
+            (records.iter())
+                .filter(|r| r.flag_set.render_mismatch && r.corrupted() == corrupted)
+                .count()
+        };
+        Self {
+            limit_px,
+            calibration_frames,
+            abstained_clean: flagged(false),
+            abstained_corrupted: flagged(true),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

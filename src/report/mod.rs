@@ -18,7 +18,9 @@ mod table;
 pub mod tables;
 
 pub use auc::{detection_auc, roc_curve};
-pub use confidence::{ConfidenceSummary, RegionSummary, RiskCoverage, CURVE_POINTS};
+pub use confidence::{
+    ConfidenceSummary, RegionSummary, RenderCheckSummary, RiskCoverage, CURVE_POINTS,
+};
 pub use files::{
     model_file_name, write_run, RunOutput, PRODUCER_FILE, REPORT_FILE, RESULTS_FILE, SCENARIO_FILE,
 };

@@ -4,7 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::auc::detection_auc;
-use super::confidence::{ConfidenceSummary, RegionSummary};
+use super::confidence::{ConfidenceSummary, RegionSummary, RenderCheckSummary};
 use super::limit::LimitSummary;
 use super::ErrorStats;
 use super::{finite, ReportError};
@@ -244,6 +244,9 @@ pub struct MethodSummary {
     /// ([`super::limit::efficiency`]).
     #[serde(default)]
     pub efficiency: Option<f64>,
+    /// What the render check did, in a run with `[confidence] render_check`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render_check: Option<RenderCheckSummary>,
 }
 
 impl MethodSummary {
@@ -275,6 +278,7 @@ impl MethodSummary {
             region: RegionSummary::of(records),
             confidence: ConfidenceSummary::of(records),
             efficiency: None,
+            render_check: None,
         }
     }
 }
@@ -470,6 +474,7 @@ pub(super) mod tests {
             region: None,
             confidence: None,
             efficiency: None,
+            render_check: None,
         }
     }
 

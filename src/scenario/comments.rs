@@ -174,6 +174,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("confidence.coverage", "Share of clean frames the regions hold."),
     ("confidence.abstain_share", "Share of clean calibration frames whose detection score may abstain."),
     ("confidence.max_region_share", "Largest region (share of the workspace) before abstaining."),
+    ("confidence.render_check", "Also abstain where the robot rendered at the estimate misses the frame's silhouette (simulated runs only)."),
     ("methods", "Settings of a registered method by its name (methods.NAME)."),
     ("methods.*", "That method's own settings."),
     ("expect", "Checked by `run` and `sweep --check` (exit 1 when missed); top-level keys hold the\nevidential tracker, expect.methods.NAME any method."),

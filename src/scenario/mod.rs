@@ -335,6 +335,13 @@ impl Scenario {
         self.confidence
             .check()
             .map_err(|e| invalid(format!("[confidence]: {e}")))?;
+        if self.confidence.render_check && self.validation.is_none() && self.calibration.is_none() {
+            return Err(invalid(
+                "`confidence.render_check` learns each method's limit on the calibration motion: \
+                 add a [calibration] or [validation] motion, or leave it out"
+                    .into(),
+            ));
+        }
         self.check_estimators(&SettingsContext {
             feature_names: features.names(),
             has_validation: self.validation.is_some(),

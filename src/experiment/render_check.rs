@@ -1,0 +1,323 @@
+//! The render check (`[confidence] render_check`): analysis by synthesis in the harness.
+//!
+//! The robot is rendered noise-free at a method's estimate from the kinematics alone
+//! ([`FiveBar::inverse`] and [`FiveBar::elbows`]: capsules pivot → elbow → end-effector and the
+//! end-effector's disc, with the geometry's radii) through the simulator's own [`Camera`], one
+//! sample per pixel (a pixel is in where its centre is). Its silhouette is compared with the
+//! frame's as the features see it ([`silhouette_pixels`]: the same threshold and largest
+//! component): the mismatch is the number of pixels where the two differ. A method abstains where
+//! the mismatch lies above the ⌈(n+1)(1 − a)⌉-th smallest of its own mismatches on the n clean
+//! calibration frames (`a` = `confidence.abstain_share`, the rule of its detection-score limit).
+//!
+//! It needs the exact image-formation model: the simulator's camera and robot. A model file
+//! carries neither, so `track` cannot use it, nor can a user's recorded frames; half a pixel of
+//! camera error already spoils it (docs/results.md).
+//!
+//! **Undefined cases abstain.** An estimate the arms cannot reach (or not finite), no estimate,
+//! a frame without a silhouette (black, dropped, no contrast) or of another size than the
+//! camera's: the mismatch is infinite, above any limit.
+
+use std::sync::Arc;
+
+use image::GrayImage;
+
+use super::{ExperimentError, Workbench};
+use crate::dataset::Dataset;
+use crate::estimator::{
+    conformal_quantile, Calibrated, Calibration, Centre, EstimatorError, Method, PoseEstimate,
+    PoseEstimator,
+};
+use crate::faults::FrameFaults;
+use crate::features::{silhouette_pixels, SilhouetteConfig};
+use crate::scenario::CheckedScenario;
+use crate::seed::{self, ScenarioPart};
+use crate::sim::{Camera, FiveBar, Part, Primitive, Scene, SimError, SimSettings};
+
+/// A frame's silhouette as the features see it, 64 pixels a word, row-major; `None` where the
+/// frame shows none.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Observed(Option<Vec<u64>>);
+
+impl Observed {
+    /// A frame without a silhouette (a dropped frame).
+    pub fn nothing() -> Self {
+        Self(None)
+    }
+
+    /// Its pixels, if it has any.
+    pub fn pixels(&self) -> Option<usize> {
+        self.0
+            .as_ref()
+            .map(|words| words.iter().map(|w| w.count_ones() as usize).sum())
+    }
+}
+
+/// Renders the robot at an estimate and compares it with a frame.
+#[derive(Debug, Clone)]
+pub struct RenderCheck {
+    camera: Camera,
+    five_bar: FiveBar,
+    silhouette: SilhouetteConfig,
+}
+
+/// Packs row-major pixel flags into words.
+fn pack(pixels: impl Iterator<Item = bool>, count: usize) -> Vec<u64> {
+    let mut words = vec![0u64; count.div_ceil(64)];
+    for (i, on) in pixels.enumerate().take(count) {
+        if on {
+            words[i / 64] |= 1 << (i % 64);
+        }
+    }
+    words
+}
+
+impl RenderCheck {
+    /// The check of frames simulated with `sim`, whose silhouette the features take with
+    /// `silhouette` (the body's polarity is the camera's).
+    ///
+    /// # Errors
+    /// `sim`'s own when it is not valid.
+    pub fn new(sim: &SimSettings, silhouette: &SilhouetteConfig) -> Result<Self, SimError> {
+        let rig = sim.check()?;
+        let mut camera = rig.camera;
+        // A pixel is in where its centre is: one sample is enough for a count of pixels.
+        camera.supersampling = 1;
+        Ok(Self {
+            camera,
+            five_bar: rig.five_bar,
+            silhouette: silhouette.clone(),
+        })
+    }
+
+    fn pixel_count(&self) -> usize {
+        let g = &self.camera.geometry;
+        g.width as usize * g.height as usize
+    }
+
+    /// The silhouette of `image` as the features see it.
+    pub fn observe(&self, image: &GrayImage) -> Observed {
+        let g = &self.camera.geometry;
+        if image.dimensions() != (g.width, g.height) {
+            return Observed(None);
+        }
+        let pixels = silhouette_pixels(image, g.polarity, &self.silhouette);
+        Observed(pixels.map(|p| pack(p.into_iter(), self.pixel_count())))
+    }
+
+    /// The robot's shapes with its end-effector at `at`, from the kinematics alone; `None` where
+    /// the arms cannot reach it.
+    fn scene(&self, at: [f64; 2]) -> Option<Scene> {
+        let theta = self.five_bar.inverse(at[0], at[1]).ok()?;
+        let g = self.five_bar.geometry();
+        let radius = g.link_radius;
+        let pivots = self.five_bar.pivots();
+        let elbows = self.five_bar.elbows(theta);
+        let mut parts = Vec::with_capacity(5);
+        for (pivot, elbow) in pivots.into_iter().zip(elbows) {
+            let (a, b) = (pivot, elbow);
+            parts.push((Part::Proximal, Primitive::Capsule { a, b, radius }));
+        }
+        for elbow in elbows {
+            let (a, b) = (elbow, at);
+            parts.push((Part::Distal, Primitive::Capsule { a, b, radius }));
+        }
+        let disc = Primitive::Disc {
+            centre: at,
+            radius: g.end_effector_radius,
+        };
+        parts.push((Part::EndEffector, disc));
+        Some(Scene { parts })
+    }
+
+    /// The robot's silhouette rendered at `at`, packed as [`Observed`]'s.
+    pub fn rendered(&self, at: [f64; 2]) -> Option<Vec<u64>> {
+        let coverage = self.camera.coverage(&self.scene(at)?);
+        Some(pack(coverage.iter().map(|&c| c >= 0.5), self.pixel_count()))
+    }
+
+    /// Pixels where the robot rendered at `estimate` and the `observed` silhouette differ;
+    /// infinite where either is undefined (module notes).
+    pub fn mismatch(&self, observed: &Observed, estimate: Option<[f64; 2]>) -> f64 {
+        let (Some(seen), Some(at)) = (&observed.0, estimate) else {
+            return f64::INFINITY;
+        };
+        let Some(rendered) = self.rendered(at) else {
+            return f64::INFINITY;
+        };
+        let differ: u32 = seen
+            .iter()
+            .zip(&rendered)
+            .map(|(a, b)| (a ^ b).count_ones())
+            .sum();
+        f64::from(differ)
+    }
+}
+
+/// The limit of a method's mismatches: the ⌈(n+1)(1 − `abstain_share`)⌉-th smallest of its `n`
+/// clean calibration frames' (infinite ones rank last); `None` when that rank is past the end
+/// or infinite, and then the check makes no frame abstain.
+pub fn render_limit(calibration: &[f64], abstain_share: f64) -> Option<f64> {
+    conformal_quantile(calibration, 1.0 - abstain_share)
+}
+
+/// The check as a run uses it: the calibration motion's silhouettes, the limits learned on them,
+/// the test frames judged against them.
+#[derive(Debug)]
+pub(super) struct Harness {
+    check: RenderCheck,
+    /// The calibration motion's frames (`[calibration]`, else the validation motion).
+    calibration: Vec<Observed>,
+    abstain_share: f64,
+}
+
+/// A method's limit with the calibration its abstentions follow.
+#[derive(Debug)]
+pub(super) struct MethodLimit {
+    /// Mismatches above it abstain (`None`: none does).
+    pub limit: Option<f64>,
+    calibration: Option<Calibration>,
+}
+
+impl Harness {
+    /// The check of `scenario`'s frames, its calibration motion's silhouettes taken.
+    pub(super) fn new(
+        scenario: &CheckedScenario,
+        bench: &Workbench,
+    ) -> Result<Self, ExperimentError> {
+        let s = scenario.get();
+        let check = RenderCheck::new(&s.sim, &s.features.silhouette).map_err(|e| {
+            ExperimentError::Simulate {
+                what: "the render check's camera and robot".into(),
+                source: Arc::new(e),
+            }
+        })?;
+        let master = s.seed;
+        let (motion, part) = match (&s.calibration, &s.validation) {
+            (Some(motion), _) => (motion, ScenarioPart::Calibration),
+            (None, Some(motion)) => (motion, ScenarioPart::Validation),
+            // The scenario's check refuses it; no limit then, so no frame abstains.
+            (None, None) => {
+                return Ok(Self {
+                    check,
+                    calibration: Vec::new(),
+                    abstain_share: s.confidence.abstain_share,
+                })
+            }
+        };
+        let data = bench.dataset(&s.sim, motion, seed::for_part(master, part), &mut |_, _| {})?;
+        Ok(Self {
+            calibration: data.images().map(|image| check.observe(image)).collect(),
+            check,
+            abstain_share: s.confidence.abstain_share,
+        })
+    }
+
+    /// The calibration motion's frames the limits are learned on.
+    pub(super) fn calibration_frames(&self) -> usize {
+        self.calibration.len()
+    }
+
+    /// The silhouettes of painted frames `at`.
+    pub(super) fn observe_painted(
+        &self,
+        at: &[usize],
+        images: &[GrayImage],
+    ) -> Vec<(usize, Observed)> {
+        let observed = images.iter().map(|image| self.check.observe(image));
+        at.iter().copied().zip(observed).collect()
+    }
+
+    /// The silhouettes of a test motion's frames: `painted` ones as painted, dropped ones none,
+    /// the others as simulated.
+    pub(super) fn observe_motion(
+        &self,
+        data: &Dataset,
+        mut painted: Vec<(usize, Observed)>,
+        labels: Option<&[FrameFaults]>,
+    ) -> Vec<Observed> {
+        painted.sort_by_key(|p| p.0);
+        (data.images().enumerate())
+            .map(|(i, image)| {
+                if labels.is_some_and(|l| l.get(i).is_some_and(|f| f.dropped)) {
+                    return Observed::nothing();
+                }
+                match painted.binary_search_by_key(&i, |p| p.0) {
+                    Ok(k) => painted[k].1.clone(),
+                    Err(_) => self.check.observe(image),
+                }
+            })
+            .collect()
+    }
+
+    /// The limit of `method` (`estimator`), learned on the calibration motion's `(truth, times,
+    /// rows)`; `None` for the centre, which has no estimate of its own to check.
+    pub(super) fn method_limit(
+        &self,
+        method: Method,
+        estimator: &dyn PoseEstimator,
+        calibrating: Option<&super::LabelledMotion>,
+    ) -> Result<Option<MethodLimit>, ExperimentError> {
+        let Some((_, times, rows)) = calibrating.filter(|_| method.name() != Centre::METHOD) else {
+            return Ok(None);
+        };
+        self.limit(estimator, rows, times)
+            .map(Some)
+            .map_err(|source| ExperimentError::Estimator {
+                stage: format!("the render check of {method} on its calibration motion"),
+                source,
+            })
+    }
+
+    /// `estimator`'s limit, learned on its estimates of the calibration motion's `rows` (at
+    /// `times`).
+    fn limit(
+        &self,
+        estimator: &dyn PoseEstimator,
+        rows: &[Vec<Option<f64>>],
+        times: &[f64],
+    ) -> Result<MethodLimit, EstimatorError> {
+        let calibrated = (estimator as &dyn std::any::Any).downcast_ref::<Calibrated>();
+        let calibration = calibrated.map(|c| c.calibration().clone());
+        // The poses its calibration saw, else (a method fitted elsewhere) tracked again.
+        let poses = match calibrated.map(Calibrated::calibration_poses) {
+            Some(poses) if poses.len() == self.calibration.len() => poses.to_vec(),
+            _ => {
+                let mut motion = estimator.start_motion();
+                (rows.iter().zip(times))
+                    .map(|(row, &time)| Ok(motion.next(time, row)?.pose))
+                    .collect::<Result<Vec<_>, EstimatorError>>()?
+            }
+        };
+        let mismatches: Vec<f64> = (poses.iter().zip(&self.calibration))
+            .map(|(&pose, observed)| self.check.mismatch(observed, pose))
+            .collect();
+        Ok(MethodLimit {
+            limit: render_limit(&mismatches, self.abstain_share),
+            calibration,
+        })
+    }
+
+    /// Makes `estimate` abstain, flagged `render_mismatch`, where its mismatch with `observed`
+    /// is above `limit`; a frame without a pose, or already abstained, is left alone.
+    pub(super) fn judge(
+        &self,
+        estimate: &mut PoseEstimate,
+        observed: &Observed,
+        limit: &MethodLimit,
+    ) {
+        let (Some(value), Some(calibration)) = (limit.limit, &limit.calibration) else {
+            return;
+        };
+        if estimate.pose.is_none() || estimate.flags.abstained {
+            return;
+        }
+        if self.check.mismatch(observed, estimate.pose) > value {
+            calibration.abstain(estimate);
+            estimate.flags.render_mismatch = true;
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "render_check_tests.rs"]
+mod tests;

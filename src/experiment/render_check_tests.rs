@@ -1,0 +1,86 @@
+use super::*;
+use crate::sim::render_pose;
+
+fn check() -> (SimSettings, RenderCheck) {
+    let sim = SimSettings::default();
+    let check = RenderCheck::new(&sim, &SilhouetteConfig::default()).expect("valid settings");
+    (sim, check)
+}
+
+#[test]
+fn the_robot_rendered_at_the_true_pose_explains_a_clean_frame_to_a_few_pixels() {
+    let (sim, check) = check();
+    let w = sim.geometry.workspace;
+    for (k, at) in [
+        [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)],
+        [w.x_min + 2.0, w.y_max - 3.0],
+        [w.x_max - 1.0, w.y_min + 1.0],
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let image = render_pose(&sim, at[0], at[1], k as u64).expect("rendered");
+        let observed = check.observe(&image);
+        let pixels = observed.pixels().expect("a silhouette");
+        assert!(pixels > 300, "{at:?}: {pixels} px");
+        let mismatch = check.mismatch(&observed, Some(at));
+        assert!(mismatch <= 10.0, "{at:?}: {mismatch} px");
+    }
+}
+
+#[test]
+fn the_mismatch_grows_with_the_pose_error() {
+    let (sim, check) = check();
+    let w = sim.geometry.workspace;
+    let at = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+    let observed = check.observe(&render_pose(&sim, at[0], at[1], 3).expect("rendered"));
+    let mismatches: Vec<f64> = [0.0, 0.1, 0.3, 1.0, 3.0]
+        .iter()
+        .map(|&d| check.mismatch(&observed, Some([at[0] + 0.6 * d, at[1] - 0.8 * d])))
+        .collect();
+    assert!(mismatches.windows(2).all(|p| p[0] < p[1]), "{mismatches:?}");
+    // Near a thousand pixels a millimetre (0.2 mm pixels along the robot's outline).
+    assert!(mismatches[3] > 500.0, "{mismatches:?}");
+}
+
+#[test]
+fn the_limit_is_the_conformal_rank_of_the_calibration_mismatches() {
+    let values: Vec<f64> = (1..=200).rev().map(f64::from).collect();
+    // ⌈201 × 0.99⌉ = 199.
+    assert_eq!(render_limit(&values, 0.01), Some(199.0));
+    // ⌈201 × 0.5⌉ = 101.
+    assert_eq!(render_limit(&values, 0.5), Some(101.0));
+    // Too few frames for the rank, or the rank lands on an undefined frame: no limit.
+    assert_eq!(render_limit(&values[..50], 0.01), None);
+    let mut undefined = values.clone();
+    undefined[..3].fill(f64::INFINITY);
+    assert_eq!(render_limit(&undefined, 0.01), None);
+    assert_eq!(render_limit(&[], 0.01), None);
+}
+
+#[test]
+fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
+    let (sim, check) = check();
+    let w = sim.geometry.workspace;
+    let at = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+    let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
+    let observed = check.observe(&image);
+    // No silhouette: a black frame, a dropped frame, a frame of another size.
+    let black = GrayImage::new(image.width(), image.height());
+    let small = GrayImage::new(10, 10);
+    for nothing in [
+        check.observe(&black),
+        Observed::nothing(),
+        check.observe(&small),
+    ] {
+        assert_eq!(nothing.pixels(), None);
+        assert_eq!(check.mismatch(&nothing, Some(at)), f64::INFINITY);
+    }
+    // No estimate, one out of the arms' reach, one not finite.
+    for estimate in [None, Some([1e4, 1e4]), Some([f64::NAN, at[1]])] {
+        assert_eq!(check.mismatch(&observed, estimate), f64::INFINITY);
+    }
+    // Just outside the workspace but reachable: rendered and compared like any other.
+    let outside = check.mismatch(&observed, Some([w.x_max + 0.5, at[1]]));
+    assert!(outside.is_finite() && outside > 100.0, "{outside}");
+}
