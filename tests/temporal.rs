@@ -287,10 +287,10 @@ fn the_particle_filter_learns_its_motion_noise_and_outlier_share() {
     assert_ne!(broken, text);
     let error = ParticleFilter::from_json(&broken).unwrap_err().to_string();
     assert!(error.contains("motion_noise"), "{error}");
-    let old = text.replace("\"format_version\": 3", "\"format_version\": 2");
+    let old = text.replace("\"format_version\": 4", "\"format_version\": 3");
     assert_ne!(old, text);
     let error = ParticleFilter::from_json(&old).unwrap_err().to_string();
-    assert!(error.contains("version") && error.contains('2'), "{error}");
+    assert!(error.contains("version") && error.contains('3'), "{error}");
 }
 
 #[test]
