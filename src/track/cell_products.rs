@@ -13,6 +13,7 @@ use std::collections::HashMap;
 
 use super::group_search::{members, GroupMask};
 use super::tracker::{Tracker, Usable};
+use super::tuples::is_prefix;
 use crate::evidence::Refining;
 
 /// Most features a group may leave out to take this path (a group's repeated cells are the union
@@ -203,16 +204,11 @@ impl CellProducts {
 
     /// Builds the chain up to `group` (usable members) from its longest prefix already built.
     fn grow(&mut self, usable: &[Option<Usable>], group: GroupMask) {
-        let is_prefix = |p: GroupMask| {
-            let top = 63 - p.leading_zeros();
-            let below = if top == 63 {
-                GroupMask::MAX
-            } else {
-                (2 << top) - 1
-            };
-            group & below == p
-        };
-        while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
+        while self
+            .chain
+            .last()
+            .is_some_and(|t| !is_prefix(t.group, group))
+        {
             self.spare.extend(self.chain.pop());
         }
         let mut built = self.chain.last().map_or(0, |t| t.group);

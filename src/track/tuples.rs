@@ -45,6 +45,18 @@ const SMALL_TABLE: usize = 4096;
 
 /// Σ p·c over Σ p of a group's tuples: 0 when no tuple is positive, `None` when the total is
 /// not a finite number above 1e-280.
+/// Whether `p` is `group`'s members up to `p`'s last one: a chain built member by member
+/// can be grown from it.
+pub(super) fn is_prefix(p: GroupMask, group: GroupMask) -> bool {
+    let top = 63 - p.leading_zeros();
+    let below = if top == 63 {
+        GroupMask::MAX
+    } else {
+        (2 << top) - 1
+    };
+    group & below == p
+}
+
 fn agreement_share(agree: f64, total: f64, positive: bool) -> Option<f64> {
     if !positive {
         return Some(0.0);
@@ -231,16 +243,11 @@ impl TupleStack {
 
     /// Keeps the longest prefix of `group` already built.
     fn keep_prefixes(&mut self, group: GroupMask) {
-        let is_prefix = |p: GroupMask| {
-            let top = 63 - p.leading_zeros();
-            let below = if top == 63 {
-                GroupMask::MAX
-            } else {
-                (2 << top) - 1
-            };
-            group & below == p
-        };
-        while self.chain.last().is_some_and(|t| !is_prefix(t.group)) {
+        while self
+            .chain
+            .last()
+            .is_some_and(|t| !is_prefix(t.group, group))
+        {
             self.spare.extend(self.chain.pop());
         }
     }
