@@ -14,8 +14,10 @@
 //! camera error already spoils it (docs/results.md).
 //!
 //! **Undefined cases abstain.** An estimate the arms cannot reach (or not finite), no estimate,
-//! a frame without a silhouette (black, dropped, no contrast) or of another size than the
-//! camera's: the mismatch is infinite, above any limit.
+//! a frame without a silhouette (black, no contrast) or of another size than the camera's: the
+//! mismatch is infinite, above any limit. A *dropped* frame is different: it has no image, which
+//! is missing data rather than evidence against the estimate, so the check leaves a temporal
+//! method's prediction there alone.
 
 use std::sync::Arc;
 
@@ -33,22 +35,37 @@ use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
 use crate::sim::{Camera, FiveBar, Part, Primitive, Scene, SimError, SimSettings};
 
-/// A frame's silhouette as the features see it, 64 pixels a word, row-major; `None` where the
-/// frame shows none.
+/// A frame as the check sees it.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Observed(Option<Vec<u64>>);
+pub struct Observed(Seen);
+
+#[derive(Debug, Clone, PartialEq)]
+enum Seen {
+    /// Dropped: there is no image to judge by.
+    NoImage,
+    /// An image showing no silhouette (or of another size than the camera's).
+    NoSilhouette,
+    /// The silhouette as the features see it, 64 pixels a word, row-major.
+    Silhouette(Vec<u64>),
+}
 
 impl Observed {
-    /// A frame without a silhouette (a dropped frame).
-    pub fn nothing() -> Self {
-        Self(None)
+    /// A dropped frame: no image.
+    pub fn dropped() -> Self {
+        Self(Seen::NoImage)
     }
 
-    /// Its pixels, if it has any.
+    /// Whether the frame was dropped (the check then judges nothing).
+    pub fn is_dropped(&self) -> bool {
+        self.0 == Seen::NoImage
+    }
+
+    /// Its silhouette's pixels, if it shows one.
     pub fn pixels(&self) -> Option<usize> {
-        self.0
-            .as_ref()
-            .map(|words| words.iter().map(|w| w.count_ones() as usize).sum())
+        match &self.0 {
+            Seen::Silhouette(words) => Some(words.iter().map(|w| w.count_ones() as usize).sum()),
+            Seen::NoImage | Seen::NoSilhouette => None,
+        }
     }
 }
 
@@ -98,10 +115,12 @@ impl RenderCheck {
     pub fn observe(&self, image: &GrayImage) -> Observed {
         let g = &self.camera.geometry;
         if image.dimensions() != (g.width, g.height) {
-            return Observed(None);
+            return Observed(Seen::NoSilhouette);
         }
-        let pixels = silhouette_pixels(image, g.polarity, &self.silhouette);
-        Observed(pixels.map(|p| pack(p.into_iter(), self.pixel_count())))
+        match silhouette_pixels(image, g.polarity, &self.silhouette) {
+            Some(p) => Observed(Seen::Silhouette(pack(p.into_iter(), self.pixel_count()))),
+            None => Observed(Seen::NoSilhouette),
+        }
     }
 
     /// The robot's shapes with its end-effector at `at`, from the kinematics alone; `None` where
@@ -138,7 +157,7 @@ impl RenderCheck {
     /// Pixels where the robot rendered at `estimate` and the `observed` silhouette differ;
     /// infinite where either is undefined (module notes).
     pub fn mismatch(&self, observed: &Observed, estimate: Option<[f64; 2]>) -> f64 {
-        let (Some(seen), Some(at)) = (&observed.0, estimate) else {
+        let (Seen::Silhouette(seen), Some(at)) = (&observed.0, estimate) else {
             return f64::INFINITY;
         };
         let Some(rendered) = self.rendered(at) else {
@@ -239,7 +258,7 @@ impl Harness {
         (data.images().enumerate())
             .map(|(i, image)| {
                 if labels.is_some_and(|l| l.get(i).is_some_and(|f| f.dropped)) {
-                    return Observed::nothing();
+                    return Observed::dropped();
                 }
                 match painted.binary_search_by_key(&i, |p| p.0) {
                     Ok(k) => painted[k].1.clone(),
@@ -298,7 +317,7 @@ impl Harness {
     }
 
     /// Makes `estimate` abstain, flagged `render_mismatch`, where its mismatch with `observed`
-    /// is above `limit`; a frame without a pose, or already abstained, is left alone.
+    /// is above `limit`; a frame without a pose, already abstained, or dropped is left alone.
     pub(super) fn judge(
         &self,
         estimate: &mut PoseEstimate,
@@ -308,7 +327,7 @@ impl Harness {
         let (Some(value), Some(calibration)) = (limit.limit, &limit.calibration) else {
             return;
         };
-        if estimate.pose.is_none() || estimate.flags.abstained {
+        if estimate.pose.is_none() || estimate.flags.abstained || observed.is_dropped() {
             return;
         }
         if self.check.mismatch(observed, estimate.pose) > value {

@@ -70,7 +70,7 @@ fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
     let small = GrayImage::new(10, 10);
     for nothing in [
         check.observe(&black),
-        Observed::nothing(),
+        Observed::dropped(),
         check.observe(&small),
     ] {
         assert_eq!(nothing.pixels(), None);
@@ -83,4 +83,47 @@ fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
     // Just outside the workspace but reachable: rendered and compared like any other.
     let outside = check.mismatch(&observed, Some([w.x_max + 0.5, at[1]]));
     assert!(outside.is_finite() && outside > 100.0, "{outside}");
+}
+
+#[test]
+fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
+    let (sim, check) = check();
+    let w = sim.geometry.workspace;
+    let at = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+    let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
+    let harness = Harness {
+        check: check.clone(),
+        calibration: Vec::new(),
+        abstain_share: 0.01,
+    };
+    let limit = MethodLimit {
+        limit: Some(50.0),
+        calibration: Some(Calibration {
+            coverage: 0.9,
+            radius: Some(2.0),
+            floor: 0.0,
+            detection_limit: None,
+            max_region_area: f64::INFINITY,
+            workspace: w,
+            validation_frames: 100,
+            validation_abstained: 0.0,
+        }),
+    };
+    let judged = |observed: &Observed, pose: [f64; 2]| {
+        let mut estimate = PoseEstimate {
+            pose: Some(pose),
+            ..PoseEstimate::default()
+        };
+        harness.judge(&mut estimate, observed, &limit);
+        (estimate.flags.abstained, estimate.flags.render_mismatch)
+    };
+    let black = GrayImage::new(image.width(), image.height());
+    assert_eq!(judged(&check.observe(&image), at), (false, false));
+    assert_eq!(
+        judged(&check.observe(&image), [at[0] + 3.0, at[1]]),
+        (true, true)
+    );
+    assert_eq!(judged(&check.observe(&black), at), (true, true));
+    // Missing data, not evidence: a temporal method's prediction stands.
+    assert_eq!(judged(&Observed::dropped(), at), (false, false));
 }
