@@ -400,3 +400,82 @@ fn on_coarse_frames_the_past_does_not_hurt() {
         }
     }
 }
+
+/// A small scenario with the filter's recovery on (`ESTIMATORS` and `LEARN` filled in): a
+/// bright box strikes 30 % of the frames, where the recovery's single-frame fit (the filter's
+/// maps) searches for the subset under the learned threshold.
+const BESIDE: &str = r#"
+name = "beside"
+seed = 1
+continuous = { learn_threshold = LEARN }
+estimators = ESTIMATORS
+[particle_filter]
+particles = 1000
+recovery_share = 0.3
+[sample]
+motion = { kind = "mesh", spacing = 2.0 }
+[validation]
+kind = "random_path"
+seed = 11
+speed = 6.0
+duration = 3.0
+fps = 20.0
+[[tests]]
+kind = "random_path"
+seed = 23
+speed = 6.0
+duration = 3.0
+fps = 20.0
+[features.barycentre]
+enabled = true
+[[faults]]
+kind = "occluder"
+rect = [70, 40, 30, 30]
+intensity = 255
+share = 0.3
+"#;
+
+/// Each method's frames (as JSON: every bit, NaN included) of the `BESIDE` run with
+/// `estimators`, on a workbench of its own; the run is dropped before returning, so nothing it
+/// fitted stays live for the next run to share.
+fn frames_beside(estimators: &[&str], learn: bool) -> Vec<(String, String)> {
+    let list = format!("{estimators:?}");
+    let text = BESIDE
+        .replace("ESTIMATORS", &list)
+        .replace("LEARN", &learn.to_string());
+    let set = evitrack::scenario::ScenarioSet::parse(&text, "beside").unwrap();
+    let bench = evitrack::experiment::Workbench::new();
+    let output = evitrack::experiment::run_all(&[set.base], 1, &bench, &|_, _, _, _| {})
+        .pop()
+        .unwrap()
+        .unwrap();
+    let frames = estimators
+        .iter()
+        .map(|&m| {
+            let own: Vec<_> = (output.records.iter()).filter(|r| r.method == m).collect();
+            assert_eq!(own.len(), 60, "{m}");
+            (m.to_string(), serde_json::to_string(&own).unwrap())
+        })
+        .collect();
+    drop(output);
+    frames
+}
+
+/// A method's numbers do not depend on which others run beside it: the filter with its
+/// recovery (its single-frame fit on maps the continuous fits may share), the continuous
+/// tracker and its temporal form, each alone against all three in one run. What the filter's
+/// recovery does depend on is its own `[continuous]` section (the threshold of that fit).
+#[test]
+fn each_methods_frames_are_the_same_alone_and_beside_the_others() {
+    let methods = ["continuous", "continuous_temporal", "particle_filter"];
+    let together = frames_beside(&methods, true);
+    for (method, frames) in &together {
+        let alone = frames_beside(&[method.as_str()], true);
+        assert!(alone[0] == (method.clone(), frames.clone()), "{method}");
+    }
+    let unlearned = frames_beside(&["particle_filter"], false);
+    assert_ne!(
+        unlearned[0], together[2],
+        "the threshold reaches the recovery"
+    );
+}
