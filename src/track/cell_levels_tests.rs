@@ -2,6 +2,7 @@
 //! grown one feature at a time) against the exhaustive enumeration, on random frames with stuck
 //! and outlying features.
 
+use super::super::cell_products::{CellProducts, MAX_LEFT_OUT};
 use super::super::group_search::{present_mask, select_group_exhaustive};
 use super::*;
 use crate::evidence::{ConflictLevel, Refining};
@@ -427,7 +428,7 @@ fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit
     for (tracker, frame) in &frames {
         let (usable, _) = tracker.measure(frame).unwrap();
         let all = present_mask(&usable);
-        let mut groups = nearly_all(all, super::super::cell_products::MAX_LEFT_OUT + 1);
+        let mut groups = nearly_all(all, MAX_LEFT_OUT + 1);
         for shuffled in [false, true] {
             if shuffled {
                 for k in (1..groups.len()).rev() {
@@ -435,6 +436,9 @@ fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit
                 }
             }
             let mut levels = tracker.cell_levels(&usable);
+            // The per-cell path itself (the stack would take the direct path for a large group
+            // while its chain is empty).
+            let mut products = CellProducts::default();
             for &g in &groups {
                 let direct = tracker.bayesian_group_level(g, &usable);
                 let grown = levels.tuples.level(tracker, &usable, g);
@@ -443,11 +447,22 @@ fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit
                     direct.map(f64::to_bits),
                     "group {g:b}"
                 );
-                compared += 1;
+                let on_cells = products.level(tracker, &usable, g);
+                if (all & !g).count_ones() <= MAX_LEFT_OUT {
+                    let on_cells = on_cells.expect("a group leaving out a few features");
+                    assert_eq!(
+                        on_cells.map(f64::to_bits),
+                        direct.map(f64::to_bits),
+                        "group {g:b} on the cells"
+                    );
+                    compared += 1;
+                } else {
+                    assert!(on_cells.is_none(), "group {g:b} leaves out too many");
+                }
             }
         }
     }
-    assert!(compared > 10_000, "{compared} levels compared");
+    assert!(compared > 10_000, "{compared} levels on the cells compared");
 }
 
 #[test]
