@@ -532,3 +532,41 @@ fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_sel
     }
     assert!(compared > 200, "{compared} alternatives compared");
 }
+
+#[test]
+fn floors_of_levels_never_exceed_the_direct_levels() {
+    // Groups in lexicographic order, so that many floors take the built prefix times the
+    // suffix products (a group with every feature above its prefix) and the others the chain.
+    let mut rng = ChaCha8Rng::seed_from_u64(38);
+    let (mut checked, mut positive) = (0, 0);
+    for (n, side, corrupt) in [(16, 30, [0, 8]), (17, 20, [3, 11])] {
+        let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
+        for frame in [clean, faulty] {
+            let (usable, _) = tracker.measure(&frame).unwrap();
+            let all = present_mask(&usable);
+            let mut levels = tracker.cell_levels(&usable);
+            let mut groups = nearly_all(all, 4);
+            groups.retain(|g| g.count_ones() >= 3);
+            for g in groups {
+                let Some(exact) = tracker.bayesian_group_level(g, &usable) else {
+                    continue;
+                };
+                let floor = levels
+                    .level_floor(g)
+                    .expect("a floor on a 16-feature model");
+                assert!(
+                    floor <= exact + 1e-12 * (1.0 + exact.abs()),
+                    "group {g:b}: floor {floor} above level {exact}"
+                );
+                checked += 1;
+                positive += usize::from(floor > 0.0);
+                // The level itself, so the chain moves on as the search's does.
+                levels.group_level(g);
+            }
+        }
+    }
+    assert!(
+        checked > 5_000 && positive > checked / 2,
+        "{positive} positive of {checked}"
+    );
+}
