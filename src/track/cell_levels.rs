@@ -56,6 +56,13 @@ impl GroupLevels for CellLevels<'_> {
                 .is_some()
     }
 
+    fn level_floor(&mut self, group: GroupMask) -> Option<f64> {
+        match self.tracker.settings.constructor {
+            Constructor::Bayesian => self.tuples.floor(self.tracker, self.usable, group),
+            Constructor::Consonant => None,
+        }
+    }
+
     fn floors_without_one(&mut self, group: GroupMask) -> Option<Vec<f64>> {
         match self.tracker.settings.constructor {
             Constructor::Bayesian => self.bayesian_floors(group),

@@ -2,6 +2,7 @@
 //! grown one feature at a time) against the exhaustive enumeration, on random frames with stuck
 //! and outlying features.
 
+use super::super::cell_products::{CellProducts, MAX_LEFT_OUT};
 use super::super::group_search::{present_mask, select_group_exhaustive};
 use super::*;
 use crate::evidence::{ConflictLevel, Refining};
@@ -10,6 +11,7 @@ use crate::track::{
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use std::collections::HashMap;
 
 /// A linear feature: its direction, the lower end of its bins, their width, its state count.
 type Spec = ([f64; 2], f64, f64, usize);
@@ -249,14 +251,17 @@ fn splitting_the_bench_frame_scaled_down_equals_the_exhaustive_selection() {
             let all = present_mask(&usable);
             let level = tracker.raw_level(all, &usable);
             let (usable, _) = tracker.measure(&faulty).unwrap();
+            let mut kept = Kept {
+                inner: tracker.cell_levels(&usable),
+                levels: HashMap::new(),
+            };
             for factor in [1.05, 1.5, 3.0] {
                 let threshold = ConflictLevel::from_value(factor * level);
                 for min_size in [2, 4] {
                     let policy = SelectionPolicy::Splitting { min_size };
                     let mut levels = tracker.cell_levels(&usable);
                     let pruned = select_group(&mut levels, n, all, policy, threshold);
-                    let mut levels = tracker.cell_levels(&usable);
-                    let every = select_group_exhaustive(&mut levels, n, all, policy, threshold);
+                    let every = select_group_exhaustive(&mut kept, n, all, policy, threshold);
                     assert_eq!(pruned, every, "n {n} side {side} ×{factor} min {min_size}");
                     split += usize::from(pruned.alternatives.len() > 5);
                 }
@@ -390,6 +395,28 @@ impl GroupLevels for Direct<'_> {
     }
 }
 
+/// Levels kept across the selections of one frame (a group's level does not depend on the
+/// threshold): the exhaustive reference computes each group once a frame, not once a selection.
+struct Kept<L> {
+    inner: L,
+    levels: HashMap<GroupMask, f64>,
+}
+
+impl<L: GroupLevels> GroupLevels for Kept<L> {
+    fn pair_level(&mut self, i: usize, j: usize) -> f64 {
+        self.inner.pair_level(i, j)
+    }
+    fn group_level(&mut self, group: GroupMask) -> f64 {
+        let inner = &mut self.inner;
+        *(self.levels)
+            .entry(group)
+            .or_insert_with(|| inner.group_level(group))
+    }
+    fn fallback_feature(&self) -> Option<usize> {
+        self.inner.fallback_feature()
+    }
+}
+
 /// Every group of `all` leaving out at most `out` features, in lexicographic order.
 fn nearly_all(all: GroupMask, out: u32) -> Vec<GroupMask> {
     let mut groups: Vec<GroupMask> = (0..1u64 << all.count_ones())
@@ -408,46 +435,67 @@ fn nearly_all(all: GroupMask, out: u32) -> Vec<GroupMask> {
 fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit() {
     // Random frames with stuck and outlying features, and the bench's frame scaled down; groups
     // asked for in lexicographic order (the walk's) and shuffled, leaving out up to one feature
-    // more than the products on the cells take (those go on numbering tuples).
+    // more than the products on the cells take (those go on numbering tuples): every group
+    // leaving out at most 3, one in eight of the others (the test's time is in the levels).
     let mut rng = ChaCha8Rng::seed_from_u64(36);
     let mut frames = Vec::new();
     for n in [16, 17] {
         let (tracker, specs) = random_tracker(&mut rng, n, Constructor::Bayesian);
-        for _ in 0..3 {
+        for _ in 0..2 {
             let frame = random_frame(&mut rng, &specs);
             frames.push((tracker.clone(), frame));
         }
     }
-    for (n, side, corrupt) in [(16, 40, [0, 8]), (18, 30, [0, 9])] {
+    for (n, side, corrupt) in [(16, 30, [0, 8]), (18, 20, [0, 9])] {
         let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
         frames.push((tracker.clone(), clean));
         frames.push((tracker, faulty));
     }
-    let mut compared = 0;
+    let (mut compared, mut beyond_products) = (0, 0);
     for (tracker, frame) in &frames {
         let (usable, _) = tracker.measure(frame).unwrap();
         let all = present_mask(&usable);
-        let mut groups = nearly_all(all, super::super::cell_products::MAX_LEFT_OUT + 1);
+        let mut groups = nearly_all(all, MAX_LEFT_OUT + 1);
+        groups.retain(|&g| (all & !g).count_ones() <= 3 || rng.random_range(0..8) == 0);
+        // The direct levels once: they do not depend on the order the groups are asked in.
+        let direct: Vec<Option<u64>> = (groups.iter())
+            .map(|&g| tracker.bayesian_group_level(g, &usable).map(f64::to_bits))
+            .collect();
+        let mut order: Vec<usize> = (0..groups.len()).collect();
         for shuffled in [false, true] {
             if shuffled {
-                for k in (1..groups.len()).rev() {
-                    groups.swap(k, rng.random_range(0..=k));
+                for k in (1..order.len()).rev() {
+                    order.swap(k, rng.random_range(0..=k));
                 }
             }
             let mut levels = tracker.cell_levels(&usable);
-            for &g in &groups {
-                let direct = tracker.bayesian_group_level(g, &usable);
+            // The per-cell path itself (the stack would take the direct path for a large group
+            // while its chain is empty).
+            let mut products = CellProducts::default();
+            for &k in &order {
+                let (g, direct) = (groups[k], direct[k]);
                 let grown = levels.tuples.level(tracker, &usable, g);
-                assert_eq!(
-                    grown.map(f64::to_bits),
-                    direct.map(f64::to_bits),
-                    "group {g:b}"
-                );
-                compared += 1;
+                assert_eq!(grown.map(f64::to_bits), direct, "group {g:b}");
+                let on_cells = products.level(tracker, &usable, g);
+                if (all & !g).count_ones() <= MAX_LEFT_OUT {
+                    let on_cells = on_cells.expect("a group leaving out a few features");
+                    assert_eq!(
+                        on_cells.map(f64::to_bits),
+                        direct,
+                        "group {g:b} on the cells"
+                    );
+                    compared += 1;
+                } else {
+                    assert!(on_cells.is_none(), "group {g:b} leaves out too many");
+                    beyond_products += 1;
+                }
             }
         }
     }
-    assert!(compared > 10_000, "{compared} levels compared");
+    assert!(
+        compared > 5_000 && beyond_products > 1_000,
+        "{compared} levels on the cells compared, {beyond_products} beyond them"
+    );
 }
 
 #[test]
@@ -457,29 +505,68 @@ fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_sel
     let mut rng = ChaCha8Rng::seed_from_u64(37);
     let mut compared = 0;
     for (n, side, corrupt) in [(16, 30, [0, 8]), (17, 40, [0, 6]), (16, 25, [3, 11])] {
-        for _frame in 0..2 {
-            let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
-            let (usable, _) = tracker.measure(&clean).unwrap();
-            let all = present_mask(&usable);
-            let level = tracker.raw_level(all, &usable);
-            let (usable, _) = tracker.measure(&faulty).unwrap();
-            for factor in [1.02, 1.05, 1.2, 2.0] {
-                let threshold = ConflictLevel::from_value(factor * level);
-                for min_size in [2, 5] {
-                    let policy = SelectionPolicy::Splitting { min_size };
-                    let mut levels = tracker.cell_levels(&usable);
-                    assert!(levels.look_ahead_first());
-                    let pruned = select_group(&mut levels, n, all, policy, threshold);
-                    let mut direct = Direct {
-                        tracker: &tracker,
-                        usable: &usable,
-                    };
-                    let every = select_group_exhaustive(&mut direct, n, all, policy, threshold);
-                    assert_eq!(pruned, every, "n {n} side {side} ×{factor} min {min_size}");
-                    compared += pruned.alternatives.len();
-                }
+        let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
+        let (usable, _) = tracker.measure(&clean).unwrap();
+        let all = present_mask(&usable);
+        let level = tracker.raw_level(all, &usable);
+        let (usable, _) = tracker.measure(&faulty).unwrap();
+        let mut direct = Kept {
+            inner: Direct {
+                tracker: &tracker,
+                usable: &usable,
+            },
+            levels: HashMap::new(),
+        };
+        for factor in [1.02, 1.05, 1.2, 2.0] {
+            let threshold = ConflictLevel::from_value(factor * level);
+            for min_size in [2, 5] {
+                let policy = SelectionPolicy::Splitting { min_size };
+                let mut levels = tracker.cell_levels(&usable);
+                assert!(levels.look_ahead_first());
+                let pruned = select_group(&mut levels, n, all, policy, threshold);
+                let every = select_group_exhaustive(&mut direct, n, all, policy, threshold);
+                assert_eq!(pruned, every, "n {n} side {side} ×{factor} min {min_size}");
+                compared += pruned.alternatives.len();
             }
         }
     }
     assert!(compared > 200, "{compared} alternatives compared");
+}
+
+#[test]
+fn floors_of_levels_never_exceed_the_direct_levels() {
+    // Groups in lexicographic order, so that many floors take the built prefix times the
+    // suffix products (a group with every feature above its prefix) and the others the chain.
+    let mut rng = ChaCha8Rng::seed_from_u64(38);
+    let (mut checked, mut positive) = (0, 0);
+    for (n, side, corrupt) in [(16, 30, [0, 8]), (17, 20, [3, 11])] {
+        let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
+        for frame in [clean, faulty] {
+            let (usable, _) = tracker.measure(&frame).unwrap();
+            let all = present_mask(&usable);
+            let mut levels = tracker.cell_levels(&usable);
+            let mut groups = nearly_all(all, 4);
+            groups.retain(|g| g.count_ones() >= 3);
+            for g in groups {
+                let Some(exact) = tracker.bayesian_group_level(g, &usable) else {
+                    continue;
+                };
+                let floor = levels
+                    .level_floor(g)
+                    .expect("a floor on a 16-feature model");
+                assert!(
+                    floor <= exact + 1e-12 * (1.0 + exact.abs()),
+                    "group {g:b}: floor {floor} above level {exact}"
+                );
+                checked += 1;
+                positive += usize::from(floor > 0.0);
+                // The level itself, so the chain moves on as the search's does.
+                levels.group_level(g);
+            }
+        }
+    }
+    assert!(
+        checked > 5_000 && positive > checked / 2,
+        "{positive} positive of {checked}"
+    );
 }

@@ -98,14 +98,16 @@ impl TupleStack {
         usable: &[Option<Usable>],
         group: GroupMask,
     ) -> Option<f64> {
+        // Groups leaving out a few features first: their products on the cells are grown
+        // apart from the tuples, which the splitting search may never need.
+        if let Some(level) = self.products.level(tracker, usable, group) {
+            return level;
+        }
         self.keep_prefixes(group);
         // Nothing to grow from and a large group (a maximum clique, before any walk): one
         // direct computation is cheaper than building every prefix.
         if self.chain.is_empty() && group.count_ones() > 4 {
             return tracker.bayesian_group_level(group, usable);
-        }
-        if let Some(level) = self.products.level(tracker, usable, group) {
-            return level;
         }
         self.grow(tracker, usable, group)?;
         let tuples = self.chain.last()?;
@@ -120,6 +122,17 @@ impl TupleStack {
             return None;
         }
         Some((-(s.ln() + tuples.log_scale)).max(0.0))
+    }
+
+    /// A floor of the Bayesian level of `group` from the products on the cells
+    /// ([`CellProducts::floor`]).
+    pub(super) fn floor(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        group: GroupMask,
+    ) -> Option<f64> {
+        self.products.floor(tracker, usable, group)
     }
 
     /// Σ_t p(t)·max_t c / Σ_t p(t) over the state tuples t of `group` (one or more usable
