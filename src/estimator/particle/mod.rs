@@ -15,7 +15,9 @@
 //! - Recovery ([`recover`]): a share `recovery_share` of the particles is drawn about the
 //!   frame's own estimate (the maps' single-frame fit) and every weight is multiplied by the
 //!   predicted density over the mixture's, so that after struck frames the cloud finds the
-//!   pose again within a frame; the detection score is the mixture's predictive likelihood.
+//!   pose again within a frame; the detection score is the filter's own predictive
+//!   likelihood (the corrected weights' sum), so a frame its posterior misses is not scored by
+//!   the particles drawn about a right guess.
 //! - σ and ε are learned on the validation motion as the temporal trackers learn α
 //!   ([`learn`]), unless given.
 //! - Systematic resampling when the effective sample size falls below half the particles.

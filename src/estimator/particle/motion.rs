@@ -321,11 +321,16 @@ impl<'a> FilterMotion<'a> {
         if !(total > 0.0 && total.is_finite()) {
             return None;
         }
-        // The score stays −ln of the mixture's predictive likelihood (the total); the weights
-        // take p̂/q, normalised by the correction, so the posterior is the filter's.
-        let divisor = match &self.mixture {
-            Some(_) if Mixture::correct(&mut self.weights, &self.logs) => 1.0,
-            _ => total,
+        // The weights take p̂/q, normalised by the correction, so the posterior is the
+        // filter's; so is the score: −ln of the filter's own predictive likelihood, not the
+        // mixture's (particles drawn about a right guess that the prediction does not reach
+        // would otherwise make a frame the posterior misses read as a good one).
+        let (divisor, total) = match &self.mixture {
+            Some(_) => match Mixture::correct(&mut self.weights, &self.logs) {
+                Some(corrected) => (1.0, corrected),
+                None => (total, total),
+            },
+            None => (total, total),
         };
         // Normalised in the same pass as the estimate's sums (`moments`).
         let (mut mean, mut squares) = ([0.0; 2], 0.0);

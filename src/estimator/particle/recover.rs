@@ -189,19 +189,20 @@ impl Mixture {
     }
 
     /// Multiplies each weight by its p̂/q (`corrections`, from [`Mixture::correction`]) and
-    /// normalises; `false` (weights untouched) when the corrected weights sum to nothing.
-    pub(super) fn correct(weights: &mut [f64], corrections: &[f64]) -> bool {
+    /// normalises; returns the corrected weights' sum (the filter's own predictive likelihood,
+    /// up to the weights' scale), `None` (weights untouched) when they sum to nothing.
+    pub(super) fn correct(weights: &mut [f64], corrections: &[f64]) -> Option<f64> {
         let mut total = 0.0;
         for (w, c) in weights.iter().zip(corrections) {
             total += w * c;
         }
         if !(total > 0.0 && total.is_finite()) {
-            return false;
+            return None;
         }
         for (w, c) in weights.iter_mut().zip(corrections) {
             *w *= c / total;
         }
-        true
+        Some(total)
     }
 }
 
@@ -267,7 +268,9 @@ mod tests {
             .iter()
             .map(|&p| near.correction(p))
             .collect();
-        assert!(Mixture::correct(&mut weights, &corrections));
+        let corrected = Mixture::correct(&mut weights, &corrections).expect("weights left");
+        // The filter's own predictive sum: the old weights times p̂/q.
+        assert_eq!(corrected, 0.5 * corrections[0] + 0.5 * corrections[1]);
         assert!((weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         assert!(weights[0] < weights[1]);
     }
