@@ -80,9 +80,9 @@ pub struct ParticleSettings {
     /// frames. That fit is the continuous tracker's with the `[continuous]` settings, so with
     /// β > 0 `continuous.learn_threshold` (its subset search on struck frames) changes the
     /// filter's numbers; the other methods of a run do not. Off (0) by default: 0.3 cut the
-    /// clean frames it abstains on in runs with image faults from 6–24 % to 1 %
+    /// clean frames it abstains on in runs with image faults from 6–24 % to 7–12 %
     /// (`scenarios/confidence.toml`, 5 seeds) but raised its error on struck frames and a
-    /// frame's cost by a quarter (docs/results.md, "Tracking over time"). Written only when
+    /// frame's cost by a sixth (docs/results.md, "Knowing when it is wrong"). Written only when
     /// not the default, so that files stay as they were.
     #[serde(skip_serializing_if = "is_default_recovery")]
     pub recovery_share: f64,
