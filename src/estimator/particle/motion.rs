@@ -328,6 +328,7 @@ impl<'a> FilterMotion<'a> {
         let (divisor, total) = match &self.mixture {
             Some(_) => match Mixture::correct(&mut self.weights, &self.logs) {
                 Some(corrected) => (1.0, corrected),
+                // Nothing left after p̂/q: the mixture's posterior, with its own score.
                 None => (total, total),
             },
             None => (total, total),
