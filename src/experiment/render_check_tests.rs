@@ -12,7 +12,7 @@ fn the_robot_rendered_at_the_true_pose_explains_a_clean_frame_to_a_few_pixels() 
     let (sim, check) = check();
     let w = sim.geometry.workspace;
     for (k, at) in [
-        [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)],
+        check.five_bar.workspace_centre(),
         [w.x_min + 2.0, w.y_max - 3.0],
         [w.x_max - 1.0, w.y_min + 1.0],
     ]
@@ -31,8 +31,7 @@ fn the_robot_rendered_at_the_true_pose_explains_a_clean_frame_to_a_few_pixels() 
 #[test]
 fn the_mismatch_grows_with_the_pose_error() {
     let (sim, check) = check();
-    let w = sim.geometry.workspace;
-    let at = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+    let at = check.five_bar.workspace_centre();
     let observed = check.observe(&render_pose(&sim, at[0], at[1], 3).expect("rendered"));
     let mismatches: Vec<f64> = [0.0, 0.1, 0.3, 1.0, 3.0]
         .iter()
@@ -62,7 +61,7 @@ fn the_limit_is_the_conformal_rank_of_the_calibration_mismatches() {
 fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
     let (sim, check) = check();
     let w = sim.geometry.workspace;
-    let at = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+    let at = check.five_bar.workspace_centre();
     let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
     let observed = check.observe(&image);
     // No silhouette: a black frame, a dropped frame, a frame of another size.
@@ -89,7 +88,7 @@ fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
 fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
     let (sim, check) = check();
     let w = sim.geometry.workspace;
-    let at = [0.5 * (w.x_min + w.x_max), 0.5 * (w.y_min + w.y_max)];
+    let at = check.five_bar.workspace_centre();
     let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
     let harness = Harness {
         check: check.clone(),
