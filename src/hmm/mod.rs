@@ -19,6 +19,7 @@ mod em;
 mod init;
 mod prepare;
 mod settings;
+mod shared;
 
 pub use settings::{AssignmentRule, HmmSettings};
 

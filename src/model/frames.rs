@@ -98,7 +98,8 @@ impl FeatureFrames {
             }
             let mut best: Option<(f64, FeatureModel)> = None;
             for n in lo..=hi {
-                let fit = GaussianHmm::fit(
+                // Kept in the process: evidential and evidential_temporal train these same fits.
+                let fit = GaussianHmm::fit_shared(
                     &values,
                     n,
                     &settings.hmm,
