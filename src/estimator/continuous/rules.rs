@@ -264,7 +264,13 @@ impl Frame<'_> {
                 let x = ((pose[k] - origin[k]) / step[k]).round();
                 (x.max(0.0) as usize).min(nodes[k] - 1)
             };
-            self.sub_grid_value(&list, group, index(1) * nodes[0] + index(0), [0.0; 2])
+            self.sub_grid_value(
+                &list,
+                group,
+                index(1) * nodes[0] + index(0),
+                [0.0; 2],
+                f64::INFINITY,
+            )
         });
         let mut best = (f64::INFINITY, None);
         for (bound, b) in blocks {
@@ -281,7 +287,8 @@ impl Frame<'_> {
                     for dy in SUB {
                         for dx in SUB {
                             let offset = [dx * step[0], dy * step[1]];
-                            let v = self.sub_grid_value(&list, group, n, offset);
+                            // A sum that reaches the best so far is not kept: stop it there.
+                            let v = self.sub_grid_value(&list, group, n, offset, best.0);
                             if v < best.0 {
                                 let p = self.node_pose(n);
                                 best = (v, Some([p[0] + offset[0], p[1] + offset[1]]));
@@ -329,13 +336,16 @@ impl Frame<'_> {
         lower
     }
 
-    /// Σ t_i (maps linear from node `n`) plus the carried belief's term at node + `offset`.
+    /// Σ t_i (maps linear from node `n`) plus the carried belief's term at node + `offset`, or
+    /// a partial sum at least `stop` once one reaches it: every term is ≥ 0 and rounding is
+    /// monotone, so the whole sum is not below `stop` either.
     pub(super) fn sub_grid_value(
         &self,
         list: &Members,
         group: GroupMask,
         n: usize,
         offset: [f64; 2],
+        stop: f64,
     ) -> f64 {
         let (_, _, _, table) = self.model.surrogate.grid();
         let d = self.values.len();
@@ -343,6 +353,9 @@ impl Frame<'_> {
         for &(i, y, inv, a) in list {
             let [f, fx, fy, _] = table[n * d + i];
             v += discounted_term((y - f - fx * offset[0] - fy * offset[1]) * inv, a).0;
+            if v >= stop {
+                return v;
+            }
         }
         if let (Some(past), true) = (&self.past, group & self.past_bit() != 0) {
             let p = self.node_pose(n);

@@ -255,7 +255,16 @@ fn levels_grow_exactly_and_the_sub_grid_search_finds_every_points_minimum() {
                         for dy in super::SUB {
                             for dx in super::SUB {
                                 let offset = [dx * step[0], dy * step[1]];
-                                least = least.min(exact.sub_grid_value(&list, group, n, offset));
+                                let value =
+                                    |stop| exact.sub_grid_value(&list, group, n, offset, stop);
+                                let (full, stopped) = (value(f64::INFINITY), value(least));
+                                // Stopped at the least so far: the same bits below it, and
+                                // never below it otherwise.
+                                match full < least {
+                                    true => assert_eq!(stopped.to_bits(), full.to_bits()),
+                                    false => assert!(stopped >= least, "{stopped} < {least}"),
+                                }
+                                least = least.min(full);
                             }
                         }
                     }
