@@ -255,8 +255,8 @@ impl CellProducts {
     /// few features skips its repeated cells as the level does: both bounds are that estimate.
     /// Otherwise the sum over every cell, not every tuple (each cell of a tuple has its
     /// product: the sum can only grow, the level only fall), is a floor, and the ceiling +∞.
-    /// The chain is grown to `walked` (a prefix of `group`, or 0), the rest of the group taken
-    /// from products of upper parts kept a frame. `None` where the sum may underflow, a contour
+    /// The chain is grown to `walked` (a prefix of `group`; 0: the group itself), the rest of
+    /// the group taken from products of upper parts kept a frame. `None` where the sum may underflow, a contour
     /// is negative or NaN, or the model has no [`NearRepeats`] (few features: numbering costs
     /// less).
     pub(super) fn bounds(
@@ -276,7 +276,10 @@ impl CellProducts {
         if !self.nonnegative {
             return None;
         }
-        if walked != 0 && is_prefix(walked, group) {
+        // Without a walk (a maximal clique), the group's own products: its level, if asked
+        // next, takes them as they are.
+        let walked = if walked == 0 { group } else { walked };
+        if is_prefix(walked, group) {
             self.products_of(usable, walked)?;
         }
         let longest = self.chain.iter().rposition(|t| is_prefix(t.group, group));

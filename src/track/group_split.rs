@@ -21,6 +21,7 @@ use super::{
     Selection, SelectionPolicy, TIE,
 };
 use crate::evidence::ConflictLevel;
+use std::cmp::Ordering;
 
 /// [`super::select_group`] with the splitting policy's first `keep` alternatives only (what a
 /// frame capped at `keep` estimates: their levels are computed, the others' need not be), and
@@ -119,7 +120,8 @@ impl<L: GroupLevels> Search<'_, L> {
                 let cut = ceilings[room - 1];
                 kept.extend(
                     (class.iter().zip(&ranges))
-                        .filter(|(_, range)| !(range.0 > cut))
+                        // A NaN floor settles nothing: the group stays.
+                        .filter(|(_, range)| range.0.partial_cmp(&cut) != Some(Ordering::Greater))
                         .map(|(&g, _)| g),
                 );
             }
@@ -253,12 +255,14 @@ impl<L: GroupLevels> Search<'_, L> {
     /// Whether `group`'s level is within the threshold, settled by its bounds when they are
     /// clear of it, else computed.
     fn admitted(&mut self, group: GroupMask, walked: GroupMask) -> bool {
-        let (floor, ceiling) = self.level_range(group, walked);
-        if self.threshold.admits(ceiling) {
-            return true;
-        }
-        if floor > self.threshold.value() {
-            return false;
+        if self.look_ahead_first {
+            let (floor, ceiling) = self.level_range(group, walked);
+            if self.threshold.admits(ceiling) {
+                return true;
+            }
+            if floor > self.threshold.value() {
+                return false;
+            }
         }
         self.threshold.admits(self.level(group))
     }
@@ -278,10 +282,10 @@ impl<L: GroupLevels> Search<'_, L> {
 
     /// Whether `group`'s level is beyond `bound`, settled by its bounds or computed.
     fn is_beyond(&mut self, group: GroupMask, bound: f64) -> bool {
-        match self.settled_beyond(group, bound) {
-            Some(beyond) => beyond,
-            None => Self::beyond(self.level(group), bound),
-        }
+        let settled = (self.look_ahead_first)
+            .then(|| self.settled_beyond(group, bound))
+            .flatten();
+        settled.unwrap_or_else(|| Self::beyond(self.level(group), bound))
     }
 }
 /// The groups found so far, in order, and by the lowest usable feature each leaves out: whether
