@@ -1,7 +1,9 @@
 //! The paper's tracker seen by the generic group search: its cells' pairwise and group levels,
 //! and the fallback feature.
 
-use super::group_search::{members, select_group, GroupLevels, GroupMask, Selection};
+use super::group_search::{
+    members, select_group, select_group_keeping, GroupLevels, GroupMask, LevelBounds, Selection,
+};
 use super::tracker::{Tracker, Usable};
 use super::tuples::TupleStack;
 use crate::evidence::Constructor;
@@ -56,11 +58,28 @@ impl GroupLevels for CellLevels<'_> {
                 .is_some()
     }
 
-    fn level_floor(&mut self, group: GroupMask) -> Option<f64> {
+    fn level_bounds(&mut self, group: GroupMask, walked: GroupMask) -> Option<LevelBounds> {
         match self.tracker.settings.constructor {
-            Constructor::Bayesian => self.tuples.floor(self.tracker, self.usable, group),
+            Constructor::Bayesian => (self.tuples).bounds(self.tracker, self.usable, group, walked),
             Constructor::Consonant => None,
         }
+    }
+
+    fn group_levels(&mut self, groups: &[GroupMask]) -> Vec<f64> {
+        let on_cells = match self.tracker.settings.constructor {
+            Constructor::Bayesian => {
+                (self.tuples).levels_on_cells(self.tracker, self.usable, groups)
+            }
+            Constructor::Consonant => vec![None; groups.len()],
+        };
+        // As `group_level` takes each: the general path where the sum underflows.
+        (groups.iter().zip(on_cells))
+            .map(|(&g, level)| match level {
+                Some(Some(k)) => k,
+                Some(None) => self.tracker.general_level(g, self.usable),
+                None => self.group_level(g),
+            })
+            .collect()
     }
 
     fn floors_without_one(&mut self, group: GroupMask) -> Option<Vec<f64>> {
@@ -173,16 +192,25 @@ impl Tracker {
         }
     }
 
-    /// Choose the group to combine among the usable features (`usable_mask`, not empty).
-    pub(super) fn select(&self, usable: &[Option<Usable>], usable_mask: GroupMask) -> Selection {
+    /// Choose the group to combine among the usable features (`usable_mask`, not empty), and
+    /// the number of the splitting policy's alternatives. Without group errors a frame keeps
+    /// the first `max_alternatives` in the policy's order, so only those are listed (and their
+    /// levels computed).
+    pub(super) fn select(
+        &self,
+        usable: &[Option<Usable>],
+        usable_mask: GroupMask,
+    ) -> (Selection, usize) {
         let mut levels = self.cell_levels(usable);
-        select_group(
-            &mut levels,
-            usable.len(),
-            usable_mask,
-            self.settings.selection,
-            self.settings.conflict_threshold,
-        )
+        let (features, policy) = (usable.len(), self.settings.selection);
+        let threshold = self.settings.conflict_threshold;
+        if self.model.knows_group_errors() {
+            let selection = select_group(&mut levels, features, usable_mask, policy, threshold);
+            let found = selection.alternatives.len();
+            return (selection, found);
+        }
+        let keep = self.settings.max_alternatives;
+        select_group_keeping(&mut levels, features, usable_mask, policy, threshold, keep)
     }
 
     /// The fallback feature: lowest validation error (features without one after those with one),

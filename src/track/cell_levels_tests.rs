@@ -3,7 +3,7 @@
 //! and outlying features.
 
 use super::super::cell_products::{CellProducts, MAX_LEFT_OUT};
-use super::super::group_search::{present_mask, select_group_exhaustive};
+use super::super::group_search::{present_mask, select_group_exhaustive, select_group_keeping};
 use super::*;
 use crate::evidence::{ConflictLevel, Refining};
 use crate::track::{
@@ -469,6 +469,14 @@ fn levels_of_groups_leaving_out_a_few_features_are_the_direct_levels_bit_for_bit
                 }
             }
             let mut levels = tracker.cell_levels(&usable);
+            if !shuffled {
+                // Several at once, as the splitting search asks for its alternatives.
+                let mut one_by_one = tracker.cell_levels(&usable);
+                for (&g, k) in groups.iter().zip(levels.group_levels(&groups)) {
+                    let one = one_by_one.group_level(g);
+                    assert_eq!(k.to_bits(), one.to_bits(), "group {g:b} together");
+                }
+            }
             // The per-cell path itself (the stack would take the direct path for a large group
             // while its chain is empty).
             let mut products = CellProducts::default();
@@ -527,6 +535,17 @@ fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_sel
                 let every = select_group_exhaustive(&mut direct, n, all, policy, threshold);
                 assert_eq!(pruned, every, "n {n} side {side} ×{factor} min {min_size}");
                 compared += pruned.alternatives.len();
+                // A capped frame's first alternatives, the others settled by bounds.
+                for keep in [1, 3, 16] {
+                    let mut levels = tracker.cell_levels(&usable);
+                    let (kept, found) =
+                        select_group_keeping(&mut levels, n, all, policy, threshold, keep);
+                    let first = &pruned.alternatives[..keep.min(found)];
+                    assert_eq!(
+                        (&kept.alternatives[..], found),
+                        (first, pruned.alternatives.len())
+                    );
+                }
             }
         }
     }
@@ -534,39 +553,47 @@ fn splitting_the_bench_frame_scaled_down_equals_the_direct_levels_exhaustive_sel
 }
 
 #[test]
-fn floors_of_levels_never_exceed_the_direct_levels() {
-    // Groups in lexicographic order, so that many floors take the built prefix times the
-    // suffix products (a group with every feature above its prefix) and the others the chain.
+fn bounds_of_levels_hold_the_direct_levels() {
+    // Groups in lexicographic order, the walk's group a prefix of each (so that bounds take a
+    // built prefix times kept upper parts, as the search's do) or none.
     let mut rng = ChaCha8Rng::seed_from_u64(38);
-    let (mut checked, mut positive) = (0, 0);
+    let (mut checked, mut two_sided) = (0, 0);
     for (n, side, corrupt) in [(16, 30, [0, 8]), (17, 20, [3, 11])] {
         let (tracker, [clean, faulty]) = bench_shaped(&mut rng, n, side, &corrupt);
         for frame in [clean, faulty] {
             let (usable, _) = tracker.measure(&frame).unwrap();
             let all = present_mask(&usable);
             let mut levels = tracker.cell_levels(&usable);
-            let mut groups = nearly_all(all, 4);
-            groups.retain(|g| g.count_ones() >= 3);
+            let mut groups = nearly_all(all, MAX_LEFT_OUT + 1);
+            groups.retain(|g| g.count_ones() >= 3 && rng.random_range(0..4) == 0);
             for g in groups {
                 let Some(exact) = tracker.bayesian_group_level(g, &usable) else {
                     continue;
                 };
-                let floor = levels
-                    .level_floor(g)
-                    .expect("a floor on a 16-feature model");
+                let first = rng.random_range(0..6);
+                let walked = members(g).take(first).fold(0, |m, i| m | 1 << i);
+                let b = levels
+                    .level_bounds(g, walked)
+                    .expect("bounds on a 16-feature model");
+                let slack = 1e-11 * (1.0 + exact.abs());
                 assert!(
-                    floor <= exact + 1e-12 * (1.0 + exact.abs()),
-                    "group {g:b}: floor {floor} above level {exact}"
+                    b.floor <= exact + slack && exact <= b.ceiling + slack,
+                    "group {g:b}: level {exact} outside {b:?}"
                 );
                 checked += 1;
-                positive += usize::from(floor > 0.0);
-                // The level itself, so the chain moves on as the search's does.
-                levels.group_level(g);
+                if b.ceiling.is_finite() {
+                    assert!(b.ceiling - b.floor <= slack, "group {g:b}: {b:?}");
+                    two_sided += 1;
+                }
+                // Now and then the level itself, so the chain moves on as the search's does.
+                if rng.random_range(0..4) == 0 {
+                    levels.group_level(g);
+                }
             }
         }
     }
     assert!(
-        checked > 5_000 && positive > checked / 2,
-        "{positive} positive of {checked}"
+        checked > 3_000 && two_sided > checked / 4 && two_sided < checked,
+        "{two_sided} two-sided of {checked}"
     );
 }

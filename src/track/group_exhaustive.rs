@@ -101,3 +101,16 @@ pub(super) fn every_clique(
     }
     (chosen, alternatives)
 }
+
+/// [`super::select_group`] over every complete subgraph, whatever the levels: the reference the
+/// pruned search is tested against.
+#[cfg(test)]
+pub(crate) fn select_group_exhaustive(
+    levels: &mut impl GroupLevels,
+    features: usize,
+    usable_mask: GroupMask,
+    policy: SelectionPolicy,
+    threshold: ConflictLevel,
+) -> super::Selection {
+    super::choose(levels, features, usable_mask, policy, threshold, true, None).0
+}

@@ -14,7 +14,8 @@
 //! is beyond the bound at hand is dropped before any group holding it is computed.
 
 use std::cmp::Ordering;
-use std::collections::HashMap;
+
+pub(super) use super::mask_map::{memoised_level, MaskMap};
 
 use super::settings::SelectionPolicy;
 use crate::evidence::ConflictLevel;
@@ -26,6 +27,9 @@ mod split;
 #[cfg(test)]
 use exhaustive::all_cliques;
 use exhaustive::every_clique;
+#[cfg(test)]
+pub(crate) use exhaustive::select_group_exhaustive;
+pub(super) use split::select_group_keeping;
 
 /// A group of features as a bit mask: bit `i` is feature `i`.
 pub type GroupMask = u64;
@@ -36,32 +40,6 @@ pub fn present_mask<T>(values: &[Option<T>]) -> GroupMask {
         .filter(|(_, v)| v.is_some())
         .fold(0, |m, (i, _)| m | 1 << i)
 }
-
-/// A hasher for group masks: the splitting search looks thousands of them up a frame (its memo,
-/// the per-cell lists of `cell_products`), where SipHash took a tenth of its time. One multiply
-/// by an odd constant, the high half folded into the low one (the table's index).
-#[derive(Default, Clone, Copy)]
-pub(super) struct MaskHasher(u64);
-
-impl std::hash::Hasher for MaskHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(u64::from(b));
-        }
-    }
-
-    fn write_u64(&mut self, x: u64) {
-        let h = (self.0.rotate_left(29) ^ x).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        self.0 = h ^ (h >> 32);
-    }
-}
-
-/// A map keyed by group masks, with [`MaskHasher`].
-pub(super) type MaskMap<V> = HashMap<GroupMask, V, std::hash::BuildHasherDefault<MaskHasher>>;
 
 /// Two levels of conflict closer than this are a tie.
 pub(super) const TIE: f64 = 1e-12;
@@ -114,12 +92,20 @@ pub trait GroupLevels {
     fn look_ahead_first(&mut self) -> bool {
         false
     }
-    /// A lower bound on the level of `group` that costs far less than the level (the paper's
-    /// Bayesian level summed over every cell instead of every state tuple), at most the level up
-    /// to a relative 1e-12; `None` without one. With [`GroupLevels::look_ahead_first`] the
-    /// splitting search rules a group out when its floor is beyond the bound.
-    fn level_floor(&mut self, _group: GroupMask) -> Option<f64> {
+    /// Bounds on the level of `group` that cost far less than the level (the paper's Bayesian
+    /// level summed over the cells in eight lanes), each within 1e-11 of the level's side of it
+    /// (rounding); `None` without them. `walked` is a prefix of `group` (the walk's group, or
+    /// 0) whose bounds may be asked next: what is built for it may be kept. With
+    /// [`GroupLevels::look_ahead_first`] the splitting search settles a group against the
+    /// threshold by them when they are clear of it, and computes the level only otherwise.
+    fn level_bounds(&mut self, _group: GroupMask, _walked: GroupMask) -> Option<LevelBounds> {
         None
+    }
+    /// The levels of `groups` (distinct, in lexicographic order, each of at least two
+    /// features), the same bits as [`GroupLevels::group_level`] gives each: an implementation
+    /// may compute several at once.
+    fn group_levels(&mut self, groups: &[GroupMask]) -> Vec<f64> {
+        groups.iter().map(|&g| self.group_level(g)).collect()
     }
     /// Lower bounds on the levels of `group` without each of its members (ascending), each at
     /// most that group's level up to a relative 1e-12, so that the largest subset rules groups
@@ -127,6 +113,16 @@ pub trait GroupLevels {
     fn floors_without_one(&mut self, _group: GroupMask) -> Option<Vec<f64>> {
         None
     }
+}
+
+/// A floor and a ceiling of a group's level ([`GroupLevels::level_bounds`]); the ceiling is
+/// +∞ when only the floor is known.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LevelBounds {
+    /// At most the level (up to rounding).
+    pub floor: f64,
+    /// At least the level (up to rounding), or +∞.
+    pub ceiling: f64,
 }
 
 /// Feature indices of a group mask, ascending.
@@ -164,31 +160,6 @@ pub(crate) fn lex_cmp(a: GroupMask, b: GroupMask) -> Ordering {
     }
 }
 
-/// A group's level (0 for one feature), memoised in `memo`. With a finite `bound`, a group whose
-/// prefix (the group without its highest feature) is already known to exceed the bound is not
-/// combined: K only grows as features are added (Theorem 4.3), so it cannot be below the bound;
-/// it is recorded as +∞.
-pub(super) fn memoised_level(
-    memo: &mut HashMap<GroupMask, f64>,
-    group: GroupMask,
-    bound: f64,
-    compute: impl FnOnce() -> f64,
-) -> f64 {
-    if group.count_ones() <= 1 {
-        return 0.0;
-    }
-    if let Some(&k) = memo.get(&group) {
-        return k;
-    }
-    let parent = group & !(1 << (63 - group.leading_zeros()));
-    let k = match memo.get(&parent) {
-        Some(&kp) if kp.is_nan() || kp > bound + TIE => f64::INFINITY,
-        _ => compute(),
-    };
-    memo.insert(group, k);
-    k
-}
-
 /// Chooses the group to combine among the usable features (`usable_mask`, not empty, of
 /// `features`): the selection `policy` on the complete subgraphs of the conflict graph, else the
 /// fallback feature. A group is eligible when its own level is within `threshold`, the quantity
@@ -207,23 +178,21 @@ pub fn select_group(
     threshold: ConflictLevel,
 ) -> Selection {
     let exhaustive = !levels.levels_grow_exactly();
-    choose(levels, features, usable_mask, policy, threshold, exhaustive)
+    choose(
+        levels,
+        features,
+        usable_mask,
+        policy,
+        threshold,
+        exhaustive,
+        None,
+    )
+    .0
 }
 
-/// [`select_group`] over every complete subgraph, whatever the levels: the reference the
-/// pruned search is tested against.
-#[cfg(test)]
-pub(crate) fn select_group_exhaustive(
-    levels: &mut impl GroupLevels,
-    features: usize,
-    usable_mask: GroupMask,
-    policy: SelectionPolicy,
-    threshold: ConflictLevel,
-) -> Selection {
-    choose(levels, features, usable_mask, policy, threshold, true)
-}
-
-/// [`select_group`] by the pruned search, or with `exhaustive` over every complete subgraph.
+/// [`select_group`] by the pruned search, or with `exhaustive` over every complete subgraph;
+/// with `keep`, only the splitting policy's first alternatives ([`select_group_keeping`]).
+/// Also the number of alternatives found.
 fn choose(
     levels: &mut impl GroupLevels,
     features: usize,
@@ -231,8 +200,11 @@ fn choose(
     policy: SelectionPolicy,
     threshold: ConflictLevel,
     exhaustive: bool,
-) -> Selection {
+    keep: Option<usize>,
+) -> (Selection, usize) {
     let adj = conflict_graph(levels, features, usable_mask, threshold);
+    // The number of alternatives found, when only some are kept.
+    let mut found = None;
     let (mut chosen, mut alternatives) = if exhaustive {
         every_clique(levels, &adj, usable_mask, policy, threshold)
     } else {
@@ -242,6 +214,7 @@ fn choose(
             levels: &mut *levels,
             adj,
             memo: MaskMap::default(),
+            ranges: MaskMap::default(),
             threshold,
             cut: threshold.value(),
             pairs: if cheap_pairs {
@@ -251,6 +224,7 @@ fn choose(
             },
             features,
             look_ahead_first,
+            keep,
         };
         match policy {
             SelectionPolicy::LargestSubset => (search.largest(usable_mask), Vec::new()),
@@ -258,7 +232,8 @@ fn choose(
                 (search.lowest(usable_mask, min_size), Vec::new())
             }
             SelectionPolicy::Splitting { min_size } => {
-                let alternatives = search.maximal_eligible(usable_mask, min_size);
+                let (alternatives, count) = search.maximal_eligible(usable_mask, min_size);
+                found = Some(count);
                 (alternatives.first().copied(), alternatives)
             }
         }
@@ -268,11 +243,14 @@ fn choose(
         alternatives.clear();
         chosen = levels.fallback_feature().map(|i| (0.0, 1 << i));
     }
-    Selection {
+    let found = found.unwrap_or(alternatives.len());
+    alternatives.truncate(keep.unwrap_or(found));
+    let selection = Selection {
         chosen,
         alternatives,
         fallback,
-    }
+    };
+    (selection, if fallback { 0 } else { found })
 }
 
 /// A chosen group and the splitting policy's alternatives, each with its level.
@@ -342,6 +320,8 @@ struct Search<'a, L: GroupLevels> {
     levels: &'a mut L,
     adj: Vec<GroupMask>,
     memo: MaskMap<f64>,
+    /// Bounds of levels not computed ([`GroupLevels::level_bounds`]), widened by their rounding.
+    ranges: MaskMap<(f64, f64)>,
     threshold: ConflictLevel,
     /// The bound beyond which no group the current walk looks for can lie: candidates whose
     /// pair with a member is beyond it are dropped (with cheap pairs). It never rises in a walk.
@@ -352,6 +332,8 @@ struct Search<'a, L: GroupLevels> {
     features: usize,
     /// [`GroupLevels::look_ahead_first`].
     look_ahead_first: bool,
+    /// How many of the splitting policy's first alternatives to keep (all: `None`).
+    keep: Option<usize>,
 }
 
 impl<L: GroupLevels> Search<'_, L> {

@@ -108,12 +108,20 @@ fn every_policy_chooses_as_the_exhaustive_enumeration_on_random_graphs() {
                 min_size: rng.random_range(1..4),
             },
         };
-        let old = choose(&mut levels, n, usable, policy, threshold, true);
-        let new = choose(&mut levels, n, usable, policy, threshold, false);
+        let old = choose(&mut levels, n, usable, policy, threshold, true, None);
+        let (new, found) = choose(&mut levels, n, usable, policy, threshold, false, None);
         assert_eq!(
-            new, old,
+            (&new, found),
+            (&old.0, old.1),
             "case {case}: n {n}, usable {usable:b}, {policy:?}, {threshold:?}"
         );
+        // Keeping the first alternatives only: the same first ones, the same count.
+        let keep = rng.random_range(1..4);
+        let (kept, kept_found) =
+            choose(&mut levels, n, usable, policy, threshold, false, Some(keep));
+        assert_eq!(kept.chosen, new.chosen);
+        assert_eq!(kept.alternatives[..], new.alternatives[..keep.min(found)]);
+        assert_eq!(kept_found, found);
         outcomes[match new.chosen {
             _ if new.fallback => 2,
             Some((_, g)) if g.count_ones() > 1 => 0,

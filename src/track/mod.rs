@@ -12,6 +12,7 @@ mod conflict;
 mod estimate;
 mod fusion;
 mod group_search;
+mod mask_map;
 mod past;
 mod settings;
 mod threshold;
@@ -23,7 +24,9 @@ mod tuples;
 pub use fusion::MAX_RULE_TUPLES;
 #[cfg(test)]
 pub(crate) use group_search::select_group_exhaustive;
-pub use group_search::{members, present_mask, select_group, GroupLevels, GroupMask, Selection};
+pub use group_search::{
+    members, present_mask, select_group, GroupLevels, GroupMask, LevelBounds, Selection,
+};
 pub use past::{group_beside_past, group_beside_past_with, past_outweighs, PastFrame};
 pub use settings::{
     CheckedTrackSettings, Combine, Discount, PoseRule, SelectionPolicy, TrackSettings,

@@ -132,6 +132,11 @@ impl TrackerModel {
         self.group_errors.get(&mask).copied()
     }
 
+    /// Whether the model knows the validation error of any group.
+    pub(super) fn knows_group_errors(&self) -> bool {
+        !self.group_errors.is_empty()
+    }
+
     /// The sample poses.
     pub fn poses(&self) -> &[[f64; 2]] {
         &self.poses

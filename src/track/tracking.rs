@@ -79,17 +79,21 @@ impl Tracker {
             flags.no_usable_feature = true;
             return FrameEstimate::without_estimate(flags);
         }
-        let Selection {
-            chosen,
-            mut alternatives,
-            fallback,
-        } = if self.settings.combine == Combine::All {
-            let level = self.level(usable_mask, usable, &mut HashMap::new(), f64::INFINITY);
+        let (
             Selection {
+                chosen,
+                mut alternatives,
+                fallback,
+            },
+            alternatives_found,
+        ) = if self.settings.combine == Combine::All {
+            let level = self.level(usable_mask, usable, &mut HashMap::new(), f64::INFINITY);
+            let selection = Selection {
                 chosen: Some((level, usable_mask)),
                 alternatives: Vec::new(),
                 fallback: false,
-            }
+            };
+            (selection, 0)
         } else {
             self.select(usable, usable_mask)
         };
@@ -98,9 +102,9 @@ impl Tracker {
             flags.no_usable_feature = true;
             return FrameEstimate::without_estimate(flags);
         };
-        // Only the alternatives the cap keeps are estimated and weighed; the frame says how
-        // many there were. The chosen group is the first kept, as uncapped.
-        let alternatives_found = alternatives.len();
+        // Only the alternatives the cap keeps are estimated and weighed (without group errors
+        // only those were listed); the frame says how many there were. The chosen group is the
+        // first kept, as uncapped.
         flags.alternatives_capped = alternatives_found > self.settings.max_alternatives;
         if flags.alternatives_capped {
             self.cap_alternatives(&mut alternatives);

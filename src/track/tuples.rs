@@ -4,7 +4,7 @@
 //! Every product and sum is taken in the same order as there, so the levels are bit-identical.
 
 use super::cell_products::CellProducts;
-use super::group_search::{members, GroupMask};
+use super::group_search::{members, GroupMask, LevelBounds};
 use super::tracker::{Tracker, Usable};
 
 /// The distinct state tuples of one group on the cells.
@@ -124,15 +124,28 @@ impl TupleStack {
         Some((-(s.ln() + tuples.log_scale)).max(0.0))
     }
 
-    /// A floor of the Bayesian level of `group` from the products on the cells
-    /// ([`CellProducts::floor`]).
-    pub(super) fn floor(
+    /// Bounds on the Bayesian level of `group` from the products on the cells
+    /// ([`CellProducts::bounds`]).
+    pub(super) fn bounds(
         &mut self,
         tracker: &Tracker,
         usable: &[Option<Usable>],
         group: GroupMask,
-    ) -> Option<f64> {
-        self.products.floor(tracker, usable, group)
+        walked: GroupMask,
+    ) -> Option<LevelBounds> {
+        let (floor, ceiling) = self.products.bounds(tracker, usable, group, walked)?;
+        Some(LevelBounds { floor, ceiling })
+    }
+
+    /// The levels of `groups` that take the products on the cells, several at once
+    /// ([`CellProducts::levels`]); `None` for the others.
+    pub(super) fn levels_on_cells(
+        &mut self,
+        tracker: &Tracker,
+        usable: &[Option<Usable>],
+        groups: &[GroupMask],
+    ) -> Vec<Option<Option<f64>>> {
+        self.products.levels(tracker, usable, groups)
     }
 
     /// Σ_t p(t)·max_t c / Σ_t p(t) over the state tuples t of `group` (one or more usable
