@@ -12,7 +12,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use super::{GaussianHmm, HmmError, HmmFit, HmmSettings};
 
-/// Bytes of keys and fits kept at most (a 24-state fit on 10,000 samples is about 85 kB).
+/// Bytes of keys and fits kept at most (an entry of 10,000 samples is counted as ~165 kB, its
+/// key's 80 kB of observations and the fit's count below).
 const CAPACITY_BYTES: usize = 32 << 20;
 
 /// A fit being made or made; `None` when it failed (each caller then fits for its own error).
