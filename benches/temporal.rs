@@ -85,8 +85,8 @@ fn temporal(c: &mut Criterion) {
         }
     }
     settings.particle_filter.particles = 20_000;
-    // Without the recovery (the default) and with it (its cost: the frame's own fit and the
-    // weights' correction).
+    // Without the recovery and with it (the default, as in `frame/particle_filter`; its cost:
+    // the frame's own fit and the weights' correction).
     for (name, recovery_share) in [
         ("frame/particle_filter 20000", 0.0),
         ("frame/particle_filter 20000 with recovery 0.3", 0.3),

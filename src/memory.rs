@@ -189,10 +189,12 @@ pub fn fit_parts(methods: &[Method], settings: &EstimatorSettings, shape: &FitSh
     }
     if uses(Method::PARTICLE_FILTER) {
         let p = settings.particle_filter.particles as u64;
+        // Per particle: its pose and the resampled copy (16 + 16), its draw (24), weight,
+        // log-likelihood and p̂/q (8 each), the radius's two key buffers (16 + 16).
         parts.push(part(
             format!("particle sets, {p} particles"),
             format!("particle_filter.particles = {p}"),
-            p * 64,
+            p * 112,
         ));
     }
     let row_users = [Method::KNN, Method::EVIDENTIAL, Method::EVIDENTIAL_TEMPORAL];

@@ -244,7 +244,7 @@ fn the_particle_filter_tracks_predicts_lost_frames_and_round_trips() {
 
 /// σ and ε are learned on the validation motion among their candidates, kept when given,
 /// defaulted without a validation motion, and written to the model file, whose earlier format
-/// (version 2, the uniform reach) is refused by name.
+/// (version 4, the recovery off by default) is refused by name.
 #[test]
 fn the_particle_filter_learns_its_motion_noise_and_outlier_share() {
     let data = Data::new();
@@ -287,10 +287,10 @@ fn the_particle_filter_learns_its_motion_noise_and_outlier_share() {
     assert_ne!(broken, text);
     let error = ParticleFilter::from_json(&broken).unwrap_err().to_string();
     assert!(error.contains("motion_noise"), "{error}");
-    let old = text.replace("\"format_version\": 4", "\"format_version\": 3");
+    let old = text.replace("\"format_version\": 5", "\"format_version\": 4");
     assert_ne!(old, text);
     let error = ParticleFilter::from_json(&old).unwrap_err().to_string();
-    assert!(error.contains("version") && error.contains('3'), "{error}");
+    assert!(error.contains("version") && error.contains('4'), "{error}");
 }
 
 #[test]

@@ -113,10 +113,10 @@ fn the_time_scenario_under_occlusion_bursts_meets_the_readme_reading() {
             .fold(f64::INFINITY, f64::min);
         assert!(lowest >= least, "{variant}: lowest ratio {lowest}");
     }
-    // On struck frames: the filter 3.923 mm, the continuous tracker over time 7.274, the
-    // evidential one 3.271.
+    // On struck frames: the filter 4.471 mm (its recovery on; 3.923 without), the continuous
+    // tracker over time 7.274, the evidential one 3.271.
     for (name, measured) in [
-        ("particle_filter", 3.923),
+        ("particle_filter", 4.471),
         ("continuous_temporal", 7.274),
         ("evidential_temporal", 3.271),
     ] {
@@ -140,12 +140,13 @@ fn the_time_scenario_under_occlusion_bursts_meets_the_readme_reading() {
 #[test]
 fn the_time_scenario_on_clean_frames_and_the_fast_circle_meets_the_readme_reading() {
     let runs = Runs::new(&["clean", "fast", "fast-v50"]);
-    // The filter (20,000 particles, σ and ε learned): 0.0208 mm on clean frames, 0.108 on the
-    // fast circle, 5.8× the continuous tracker over time there (5 seeds: 0.0220, 0.102, 5.5×).
+    // The filter (20,000 particles, σ and ε learned, its recovery on): 0.0196 mm on clean
+    // frames, 0.0437 on the fast circle, over twice the continuous tracker over time there
+    // (5 seeds: 0.0210, 0.0391, 2.2×; without the recovery 0.0220, 0.102, 5.5×).
     let filter = |variant: &str| runs.mean(variant, "particle_filter");
-    within(filter("clean"), 0.02078, "filter, clean");
-    within(filter("fast"), 0.1080, "filter, fast");
-    assert!(runs.mean("fast", "continuous_temporal") * 5.0 < filter("fast"));
+    within(filter("clean"), 0.01965, "filter, clean");
+    within(filter("fast"), 0.04370, "filter, fast");
+    assert!(runs.mean("fast", "continuous_temporal") * 2.0 < filter("fast"));
     assert!(filter("clean") * 10.0 < runs.mean("clean", "evidential_temporal"));
     assert!(filter("fast") < runs.mean("fast", "evidential_temporal"));
     assert!(runs.mean("clean", "continuous_temporal") < filter("clean"));
@@ -176,11 +177,11 @@ fn the_time_scenario_on_clean_frames_and_the_fast_circle_meets_the_readme_readin
 #[test]
 fn the_time_scenario_predicts_lost_frames_as_the_readme_reads() {
     let runs = Runs::new(&["dropped"]);
-    // Lost frames, predicted: 1.083 mm (evidential), 0.990 (continuous), 1.068 (filter).
+    // Lost frames, predicted: 1.083 mm (evidential), 0.990 (continuous), 1.069 (filter).
     for (name, measured) in [
         ("evidential_temporal", 1.083),
         ("continuous_temporal", 0.990),
-        ("particle_filter", 1.068),
+        ("particle_filter", 1.069),
     ] {
         within(runs.struck_mean("dropped", name), measured, name);
     }

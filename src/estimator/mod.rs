@@ -35,7 +35,7 @@ pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
 pub use motion::{TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES};
 pub(crate) use motion::{REFINE_MAX_POINTS, REFINE_SUBDIVISIONS};
-pub use particle::{ParticleFilter, ParticleSettings};
+pub use particle::{FilterScore, ParticleFilter, ParticleSettings};
 pub use registry::{
     register, CheckFn, EstimatorSettings, FitFn, LoadFn, Method, MethodEntry, RegistryError,
     SettingsContext, SharedFitFn, BUILT_IN,

@@ -15,8 +15,10 @@
 //! - Recovery ([`recover`]): a share `recovery_share` of the particles is drawn about the
 //!   frame's own estimate (the maps' single-frame fit) and every weight is multiplied by the
 //!   predicted density over the mixture's, so that after struck frames the cloud finds the
-//!   pose again within a frame; the detection score is the filter's own predictive
-//!   likelihood (the corrected weights' sum), so a frame its posterior misses is not scored by
+//!   pose again within a frame.
+//! - Detection score ([`FilterScore`]): how well the posterior explains the frame (its
+//!   expected log-likelihood), or the filter's own predictive likelihood (the corrected
+//!   weights' sum); either is the filter's, so a frame its posterior misses is not scored by
 //!   the particles drawn about a right guess.
 //! - σ and ε are learned on the validation motion as the temporal trackers learn α
 //!   ([`learn`]), unless given.
@@ -79,20 +81,34 @@ pub struct ParticleSettings {
     /// posterior stays the filter's (`recover`): what brings the cloud back after struck
     /// frames. That fit is the continuous tracker's with the `[continuous]` settings, so with
     /// β > 0 `continuous.learn_threshold` (its subset search on struck frames) changes the
-    /// filter's numbers; the other methods of a run do not. Off (0) by default: 0.3 cut the
-    /// clean frames it abstains on in runs with image faults from 6–24 % to 7–12 %
-    /// (`scenarios/confidence.toml`, 5 seeds) but raised its error on struck frames and a
-    /// frame's cost by a sixth (docs/results.md, "Knowing when it is wrong"). Written only when
-    /// not the default, so that files stay as they were.
-    #[serde(skip_serializing_if = "is_default_recovery")]
+    /// filter's numbers; the other methods of a run do not. 0.3 by default (0 turns it off):
+    /// with the posterior score it is what keeps the filter answering the clean frames after
+    /// struck ones, right (docs/results.md, "Knowing when it is wrong"); it costs a frame about
+    /// a sixth more and raises the error on some struck frames.
     pub recovery_share: f64,
+    /// The detection score a frame is judged by (abstention, risk–coverage): how well the
+    /// posterior explains the frame (`posterior`, the default) or how well the prediction
+    /// foresaw it (`predictive`). Keep `predictive` with the recovery off: without it the
+    /// clean frames after struck ones are a little off, beyond their regions, and only the
+    /// prediction's miss says so (docs/results.md, "Knowing when it is wrong").
+    pub score: FilterScore,
 }
 
-/// The default recovery share: a model file or scenario without the field has it.
-const DEFAULT_RECOVERY_SHARE: f64 = 0.0;
-
-fn is_default_recovery(share: &f64) -> bool {
-    *share == DEFAULT_RECOVERY_SHARE
+/// The particle filter's detection score of a frame.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FilterScore {
+    /// −Σ wᵢ lᵢ, the posterior's expected log-likelihood with a minus (wᵢ the posterior
+    /// weights, lᵢ each particle's log-likelihood of the frame): low where the pose the filter
+    /// settles on explains the features, whatever the prediction expected. A right estimate
+    /// the prediction reached only thinly (the clean frame after a struck one) reads as good.
+    #[default]
+    Posterior,
+    /// −ln Σ wᵢ⁻ Lᵢ, the frame's predictive likelihood with a minus (wᵢ⁻ the predicted
+    /// weights): high also where the prediction missed a frame the posterior then explains.
+    /// Without the recovery's mixture it is the posterior score plus the posterior's
+    /// Kullback–Leibler divergence from the prediction.
+    Predictive,
 }
 
 impl Default for ParticleSettings {
@@ -103,7 +119,8 @@ impl Default for ParticleSettings {
             outlier_share: None,
             seed: 0,
             velocity_share: 0.5,
-            recovery_share: DEFAULT_RECOVERY_SHARE,
+            recovery_share: 0.3,
+            score: FilterScore::Posterior,
         }
     }
 }
@@ -179,8 +196,9 @@ struct ParticleFile {
 impl ParticleFilter {
     /// Version of the model file format this build writes and reads (3: σ and ε learned, the
     /// reach `max_speed` no longer used; 4: `recovery_share`, so that a file of 3 is not read
-    /// with a recovery it did not have).
-    pub const FORMAT_VERSION: u32 = 4;
+    /// with a recovery it did not have; 5: `score`, and the recovery on by default, so that a
+    /// file of 4 without the field is not read with a recovery it did not have).
+    pub const FORMAT_VERSION: u32 = 5;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "particle_filter";
 

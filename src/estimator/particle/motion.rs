@@ -16,7 +16,7 @@ use super::likelihood::{exp, BlockScratch, FrameLikelihood, BLOCK};
 use super::pool::{Disjoint, Outcome, Pool};
 use super::radius::WeightedRadius;
 use super::recover::{Guess, Mixture, Predicted};
-use super::ParticleFilter;
+use super::{FilterScore, ParticleFilter};
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::VelocityLine;
 use crate::estimator::{EstimateFlags, EstimatorError, MotionTracker, PoseEstimate, PoseEstimator};
@@ -56,6 +56,9 @@ pub(super) struct FilterMotion<'a> {
     likelihood: FrameLikelihood,
     draws: Vec<Draw>,
     logs: Vec<f64>,
+    /// Each particle's p̂/q under the recovery's mixture (empty without one), beside its
+    /// log-likelihood: the posterior's fit (`FilterScore::Posterior`) reads both.
+    corrections: Vec<f64>,
     maxes: Vec<f64>,
     scratch: [Mutex<BlockScratch>; 2],
     radius: Mutex<WeightedRadius>,
@@ -170,6 +173,7 @@ impl<'a> FilterMotion<'a> {
             uniforms,
             draws: Vec::with_capacity(n),
             logs: vec![0.0; n],
+            corrections: Vec::new(),
             maxes: vec![f64::NEG_INFINITY; n.div_ceil(BLOCK)],
             scratch: Default::default(),
             radius: Mutex::new(WeightedRadius::with_capacity(n)),
@@ -277,9 +281,9 @@ impl<'a> FilterMotion<'a> {
         );
     }
 
-    /// Weights by the frame's likelihood (`logs`, with `maxes`); −ln of the predictive
-    /// likelihood (the detection score), or `None` when every particle's likelihood underflows
-    /// (the weights then stay).
+    /// Weights by the frame's likelihood (`logs`, with `maxes`); the detection score (the
+    /// settings' [`FilterScore`]), or `None` when every particle's likelihood underflows (the
+    /// weights then stay).
     fn update(&mut self) -> Option<f64> {
         // The largest of the blocks' largest: the largest, whatever the grouping (no −0 in a
         // sum from +0, and `max` passes over NaN).
@@ -288,12 +292,15 @@ impl<'a> FilterMotion<'a> {
             return None;
         }
         let n = self.weights.len();
+        if self.mixture.is_some() {
+            self.corrections.resize(n, 0.0);
+        }
         let pool = self.pool.as_ref().filter(|_| self.threads);
-        let (weights, logs) = (
+        let (weights, corrections) = (
             Disjoint::new(&mut self.weights),
-            Disjoint::new(&mut self.logs),
+            Disjoint::new(&mut self.corrections),
         );
-        let (mixture, particles) = (self.mixture.as_ref(), &self.particles);
+        let (mixture, particles, logs) = (self.mixture.as_ref(), &self.particles, &self.logs);
         each_chunk(
             pool,
             &mut self.outcome,
@@ -301,15 +308,15 @@ impl<'a> FilterMotion<'a> {
             &|chunk, _| {
                 let range = chunk * WEIGHT_CHUNK..((chunk + 1) * WEIGHT_CHUNK).min(n);
                 // SAFETY: each chunk takes its own range.
-                let (weights, logs) =
-                    unsafe { (weights.range(range.clone()), logs.range(range.clone())) };
-                for (w, l) in weights.iter_mut().zip(&*logs) {
+                let weights = unsafe { weights.range(range.clone()) };
+                for (w, l) in weights.iter_mut().zip(&logs[range.clone()]) {
                     *w *= exp(l - max);
                 }
-                // With a mixture, each log-likelihood (used) gives way to the particle's p̂/q.
                 if let Some(mixture) = mixture {
-                    for (l, p) in logs.iter_mut().zip(&particles[range]) {
-                        *l = mixture.correction(*p);
+                    // SAFETY: as above.
+                    let corrections = unsafe { corrections.range(range.clone()) };
+                    for (c, p) in corrections.iter_mut().zip(&particles[range]) {
+                        *c = mixture.correction(*p);
                     }
                 }
             },
@@ -322,25 +329,30 @@ impl<'a> FilterMotion<'a> {
             return None;
         }
         // The weights take p̂/q, normalised by the correction, so the posterior is the
-        // filter's; so is the score: −ln of the filter's own predictive likelihood, not the
-        // mixture's (particles drawn about a right guess that the prediction does not reach
-        // would otherwise make a frame the posterior misses read as a good one).
+        // filter's; so is the predictive score: −ln of the filter's own predictive likelihood,
+        // not the mixture's (particles drawn about a right guess that the prediction does not
+        // reach would otherwise make a frame the posterior misses read as a good one).
         let (divisor, total) = match &self.mixture {
-            Some(_) => match Mixture::correct(&mut self.weights, &self.logs) {
+            Some(_) => match Mixture::correct(&mut self.weights, &self.corrections) {
                 Some(corrected) => (1.0, corrected),
                 // Nothing left after p̂/q: the mixture's posterior, with its own score.
                 None => (total, total),
             },
             None => (total, total),
         };
-        // Normalised in the same pass as the estimate's sums (`moments`).
-        let (mut mean, mut squares) = ([0.0; 2], 0.0);
-        for (w, p) in self.weights.iter_mut().zip(&self.particles) {
+        // Normalised in the same pass as the estimate's sums (`moments`) and the posterior's
+        // expected log-likelihood.
+        let (mut mean, mut squares, mut fit) = ([0.0; 2], 0.0, 0.0);
+        for ((w, p), l) in self.weights.iter_mut().zip(&self.particles).zip(&self.logs) {
             *w /= divisor;
             (mean, squares) = add_moments(mean, squares, *w, p);
+            fit += *w * l;
         }
         self.moments = Some((mean, squares));
-        Some(-(total.ln() + max))
+        Some(match self.filter.file.settings.score {
+            FilterScore::Posterior => -fit,
+            FilterScore::Predictive => -(total.ln() + max),
+        })
     }
 
     /// p̂, the density the prediction moves the last posterior to (`recover`): uniform over the
