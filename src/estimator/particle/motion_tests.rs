@@ -78,21 +78,26 @@ fn two_threads_give_every_bit_of_one_over_a_struck_motion() {
     }
 }
 
-#[test]
-fn the_recovery_share_brings_the_cloud_back_after_struck_frames() {
+/// A slow path of 80 frames (time, true pose, 6 features); every fifth frame (k % 5 == 4)
+/// shows the features of a pose 1.5 mm away, which drag the cloud (and the velocity line)
+/// there.
+fn struck_every_fifth_frame() -> Vec<(f64, [f64; 2], Vec<Option<f64>>)> {
     use rand::SeedableRng;
-    let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
-    // A slow path; every fifth frame shows the features of a pose 1.5 mm away, which drag
-    // the cloud (and the velocity line) there.
     let mut rng = ChaCha8Rng::seed_from_u64(9);
-    let frames: Vec<(f64, [f64; 2], Vec<Option<f64>>)> = (0..80)
+    (0..80)
         .map(|k| {
             let t = k as f64 / 20.0;
             let q = [4.0 * (0.8 * t).sin(), 47.5 + 4.0 * (0.5 * t).sin()];
             let shown = if k % 5 == 4 { [q[0] + 1.5, q[1]] } else { q };
             (t, q, feature_row(6, shown, 0.01, &mut rng))
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn the_recovery_share_brings_the_cloud_back_after_struck_frames() {
+    let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
+    let frames = struck_every_fifth_frame();
     // Mean error on the clean frames right after a struck one.
     let after_struck = |recovery_share: f64| {
         let settings = ParticleSettings {
@@ -124,18 +129,8 @@ fn the_recovery_share_brings_the_cloud_back_after_struck_frames() {
 
 #[test]
 fn the_posterior_score_reads_a_right_estimate_after_a_struck_frame_as_good() {
-    use rand::SeedableRng;
     let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
-    // As above: every fifth frame shows the features of a pose 1.5 mm away.
-    let mut rng = ChaCha8Rng::seed_from_u64(9);
-    let frames: Vec<(f64, Vec<Option<f64>>)> = (0..80)
-        .map(|k| {
-            let t = k as f64 / 20.0;
-            let q = [4.0 * (0.8 * t).sin(), 47.5 + 4.0 * (0.5 * t).sin()];
-            let shown = if k % 5 == 4 { [q[0] + 1.5, q[1]] } else { q };
-            (t, feature_row(6, shown, 0.01, &mut rng))
-        })
-        .collect();
+    let frames = struck_every_fifth_frame();
     let run = |recovery_share: f64, score: FilterScore| {
         let settings = ParticleSettings {
             particles: 2_000,
@@ -150,7 +145,7 @@ fn the_posterior_score_reads_a_right_estimate_after_a_struck_frame_as_good() {
                 .unwrap();
         let mut motion = FilterMotion::with_threads(&filter, false);
         (frames.iter())
-            .map(|(t, row)| motion.next(*t, row).unwrap())
+            .map(|(t, _, row)| motion.next(*t, row).unwrap())
             .collect::<Vec<_>>()
     };
     let score = |e: &PoseEstimate| e.detection_score.unwrap();
