@@ -108,15 +108,15 @@ fn the_confidence_sweep_on_clean_frames_meets_its_expectations_and_the_readme_st
 #[test]
 fn the_confidence_sweep_under_a_bright_box_and_glare_meets_the_readme_statements() {
     let runs = confidence_runs(&["bright-box", "glare"]);
-    // Every method but the filter abstains on every bright-box and glare frame (the filter on
-    // most); so none answers those frames with a confident error.
+    // Every method with regions abstains on (nearly) every bright-box and glare frame (seed 1:
+    // 113–114 of 114); so none answers those frames with a confident error.
     for variant in ["bright-box", "glare"] {
         let struck = runs[&format!("confidence-{variant}")]
             .method("evidential")
             .and_then(|m| m.faults.as_ref())
             .map(|f| f.corrupted_frames)
             .expect("faults");
-        for method in &WITH_REGIONS[..6] {
+        for method in WITH_REGIONS {
             let c = confidence(&runs, variant, method);
             assert!(
                 c.abstained_corrupted as f64 >= 0.97 * struck as f64,
@@ -124,11 +124,6 @@ fn the_confidence_sweep_under_a_bright_box_and_glare_meets_the_readme_statements
                 c.abstained_corrupted
             );
         }
-        let filter = confidence(&runs, variant, "particle_filter");
-        assert!(
-            filter.coverage_corrupted.unwrap() >= 0.85,
-            "{variant}: {filter:?}"
-        );
     }
     // The continuous tracker's AURC over all frames is below the GP's under the bright box and
     // glare (and salt-and-pepper, below).
