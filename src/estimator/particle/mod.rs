@@ -84,7 +84,7 @@ pub struct ParticleSettings {
     /// filter's numbers; the other methods of a run do not. 0.3 by default (0 turns it off):
     /// with the posterior score it is what keeps the filter answering the clean frames after
     /// struck ones, right (docs/results.md, "Knowing when it is wrong"); it costs a frame about
-    /// a sixth more and raises the error on some struck frames.
+    /// an eighth more and raises the error on some struck frames (occlusion bursts).
     pub recovery_share: f64,
     /// The detection score a frame is judged by (abstention, risk–coverage): how well the
     /// posterior explains the frame (`posterior`, the default) or how well the prediction
