@@ -32,6 +32,7 @@ mod learn;
 mod likelihood;
 mod motion;
 mod pool;
+mod predict;
 mod radius;
 mod recover;
 
