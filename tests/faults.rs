@@ -98,6 +98,29 @@ fn the_faults_sweep_meets_its_expectations_and_the_readme_claims() {
             "{variant}"
         );
     }
+    // A feature fault leaves the other frames alone: every method's clean frames under the noise
+    // bursts are the clean run's, estimate and region alike (so their coverage is the clean
+    // run's on a subset of its frames; docs/results.md).
+    let clean_run = &runs["faults-clean"].records;
+    let mut compared = 0;
+    for r in (runs["faults-noise-burst"].records.iter()).filter(|r| !r.corrupted()) {
+        let same = (clean_run.iter())
+            .find(|c| c.method == r.method && c.motion == r.motion && c.frame == r.frame)
+            .unwrap();
+        assert_eq!(
+            (same.estimate, same.region_covers, same.region_area),
+            (r.estimate, r.region_covers, r.region_area),
+            "{} frame {}",
+            r.method,
+            r.frame
+        );
+        compared += 1;
+    }
+    assert_eq!(
+        compared,
+        5 * 160,
+        "five methods, 160 clean frames on seed 1"
+    );
     let offset_gp = mean(faults(&runs, "offset", "gp").error_corrupted);
     assert!(offset_gp < mean(faults(&runs, "offset", "evidential").error_corrupted));
     let left_out = |v: &str| method(&runs, v, "evidential").frames_with_features_left_out;
