@@ -8,7 +8,7 @@ use crate::estimator::{
     underlying, Continuous, EstimatorSettings, Method, PoseEstimator, TrainingSet,
 };
 use crate::information::{InformationError, NoiseModel};
-use crate::report::LimitNoise;
+use crate::report::{efficiency, FrameRecord, LimitNoise, LimitSummary, MethodSummary};
 
 use super::Workbench;
 
@@ -102,4 +102,34 @@ pub fn frame_bounds(
             model.bound(&slopes, &present)
         })
         .collect()
+}
+
+/// Puts each frame's limit (√ tr I⁻¹) on its records and each method's efficiency on its
+/// summary; the run's limit is over the clean frames.
+pub(super) fn attach(
+    found: Limits,
+    tests: &[super::TestMotion],
+    records: &mut [FrameRecord],
+    methods: &mut [MethodSummary],
+) -> LimitSummary {
+    let bound_of = |motion: &str, frame: usize| {
+        let k = tests.iter().position(|t| t.0 == motion)?;
+        *found.per_motion.get(k)?.get(frame)?
+    };
+    for r in records.iter_mut() {
+        r.limit_mm = bound_of(&r.motion, r.frame).map(f64::sqrt);
+    }
+    for m in methods.iter_mut() {
+        let own: Vec<&FrameRecord> = records.iter().filter(|r| r.method == m.method).collect();
+        m.efficiency = efficiency(&own);
+    }
+    let frames: Vec<(Option<f64>, bool)> = (tests.iter().zip(&found.per_motion))
+        .flat_map(|(t, bounds)| {
+            bounds.iter().enumerate().map(|(i, b)| {
+                let corrupted = t.4.as_ref().is_some_and(|l| l[i].corrupted());
+                (*b, corrupted)
+            })
+        })
+        .collect();
+    LimitSummary::of(&frames, found.noise)
 }

@@ -30,8 +30,8 @@ use crate::faults::FeatureScale;
 use crate::features::FeatureRows;
 use crate::model_file::Provenance;
 use crate::report::{
-    efficiency, ErrorStats, EvidentialSummary, FrameRecord, LimitSummary, MethodSummary,
-    MethodTimings, RenderCheckSummary, RunSummary, Timings,
+    CalibrationReach, ErrorStats, EvidentialSummary, FrameRecord, MethodSummary, MethodTimings,
+    RenderCheckSummary, RunSummary, Timings,
 };
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
@@ -291,7 +291,7 @@ pub fn run(
         .map(|t| (t.1.as_slice(), t.3.as_slice()))
         .collect();
     let limits = limit::measure(&estimators, bench, &settings, &training, &views);
-    let limit = limits.map(|found| attach_limits(found, &tests, &mut records, &mut methods));
+    let limit = limits.map(|found| limit::attach(found, &tests, &mut records, &mut methods));
 
     let evidential = estimators
         .iter()
@@ -312,6 +312,8 @@ pub fn run(
         paper_error: s.paper_error,
         limit,
         expect: s.expect.clone(),
+        calibration_reach: (calibration.as_ref().or(validation.as_ref()))
+            .and_then(|(poses, _, _)| CalibrationReach::of(poses, &records)),
     };
     Ok(RunOutput {
         summary,
@@ -324,36 +326,6 @@ pub fn run(
         producer: None,
         workspace: Some(sim.geometry.workspace),
     })
-}
-
-/// Puts each frame's limit (√ tr I⁻¹) on its records and each method's efficiency on its
-/// summary; the run's limit is over the clean frames.
-fn attach_limits(
-    found: limit::Limits,
-    tests: &[TestMotion],
-    records: &mut [FrameRecord],
-    methods: &mut [MethodSummary],
-) -> LimitSummary {
-    let bound_of = |motion: &str, frame: usize| {
-        let k = tests.iter().position(|t| t.0 == motion)?;
-        *found.per_motion.get(k)?.get(frame)?
-    };
-    for r in records.iter_mut() {
-        r.limit_mm = bound_of(&r.motion, r.frame).map(f64::sqrt);
-    }
-    for m in methods.iter_mut() {
-        let own: Vec<&FrameRecord> = records.iter().filter(|r| r.method == m.method).collect();
-        m.efficiency = efficiency(&own);
-    }
-    let frames: Vec<(Option<f64>, bool)> = (tests.iter().zip(&found.per_motion))
-        .flat_map(|(t, bounds)| {
-            bounds.iter().enumerate().map(|(i, b)| {
-                let corrupted = t.4.as_ref().is_some_and(|l| l[i].corrupted());
-                (*b, corrupted)
-            })
-        })
-        .collect();
-    LimitSummary::of(&frames, found.noise)
 }
 
 /// A test motion as a run holds it: label, truth, times, feature rows, fault labels.

@@ -10,6 +10,7 @@ pub mod html;
 mod limit;
 mod pages;
 pub(crate) mod plot;
+mod reach;
 mod records;
 mod run_plots;
 mod seeds;
@@ -32,6 +33,7 @@ pub use plot::{
     BarSeries, PlotSeries, TrackPlot, FAULT_MARK, FAULT_SHADE, INTERVAL, LOST_SHADE, PAPER,
     WORKSPACE,
 };
+pub use reach::{CalibrationReach, MethodReach, REACH_MM};
 pub use records::{
     write_frames_csv, EvidentialSummary, FaultSummary, FrameRecord, MethodSummary, MethodTimings,
     RunSummary, Timings,

@@ -405,6 +405,10 @@ pub struct RunSummary {
     pub limit: Option<LimitSummary>,
     /// What the scenario expects.
     pub expect: Expectations,
+    /// How far the test poses lie from the calibration motion's (runs with a calibration or
+    /// validation motion).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_reach: Option<super::CalibrationReach>,
 }
 
 impl RunSummary {
@@ -510,6 +514,7 @@ pub(super) mod tests {
             paper_error: None,
             limit: None,
             expect,
+            calibration_reach: None,
         };
         let missed = summary.regressions();
         assert_eq!(missed.len(), 4, "{missed:?}");

@@ -340,6 +340,7 @@ mod tests {
             paper_error: None,
             limit: None,
             expect: Expectations::default(),
+            calibration_reach: None,
         }
     }
 

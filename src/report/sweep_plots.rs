@@ -329,6 +329,7 @@ mod tests {
             paper_error: None,
             limit: None,
             expect: Expectations::default(),
+            calibration_reach: None,
         }
     }
 

@@ -1,0 +1,192 @@
+//! How far the test frames lie from the calibration motion: the regions and abstention limits
+//! are order statistics of the calibration frames and hold for test frames like them, so a run
+//! states how many of its test poses the calibration motion came near, and each method's clean
+//! abstentions on either side (docs/results.md, "Clean abstentions off the file").
+
+use serde::{Deserialize, Serialize};
+
+use super::FrameRecord;
+
+/// A test pose farther than this (mm) from every calibration pose is out of the calibration's
+/// reach: the sample mesh's usual spacing.
+pub const REACH_MM: f64 = 1.0;
+
+/// The test frames' distance from the calibration motion's poses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationReach {
+    /// The distance (mm) beyond which a test pose counts as far.
+    pub within_mm: f64,
+    /// Test frames with a true pose.
+    pub frames: usize,
+    /// Of those, the ones farther than `within_mm` from every calibration pose.
+    pub far_frames: usize,
+    /// Median distance (mm) of a test pose from its nearest calibration pose.
+    pub median_mm: f64,
+    /// Each method's clean frames and abstentions, near and far.
+    pub methods: Vec<MethodReach>,
+}
+
+/// One method's clean frames near and far from the calibration motion, and its abstentions there.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MethodReach {
+    /// The method.
+    pub method: String,
+    /// Clean frames within the reach.
+    pub clean_near: usize,
+    /// Of `clean_near`, the frames the method abstained on.
+    pub abstained_near: usize,
+    /// Clean frames beyond the reach.
+    pub clean_far: usize,
+    /// Of `clean_far`, the frames the method abstained on.
+    pub abstained_far: usize,
+}
+
+impl CalibrationReach {
+    /// From the calibration motion's true poses and the run's records (every method's, in
+    /// method order); `None` without calibration poses or test frames with a truth.
+    pub fn of(calibration: &[[f64; 2]], records: &[FrameRecord]) -> Option<Self> {
+        if calibration.is_empty() {
+            return None;
+        }
+        let nearest = |p: [f64; 2]| {
+            (calibration.iter())
+                .map(|q| (p[0] - q[0]).hypot(p[1] - q[1]))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let first = records.first()?.method.clone();
+        // Every method sees the same frames: the distances come from the first method's.
+        let mut distances: Vec<f64> = (records.iter())
+            .filter(|r| r.method == first)
+            .filter_map(|r| r.truth.map(nearest))
+            .collect();
+        if distances.is_empty() {
+            return None;
+        }
+        let far = |r: &FrameRecord| r.truth.is_some_and(|p| nearest(p) > REACH_MM);
+        let mut methods: Vec<MethodReach> = Vec::new();
+        for r in records
+            .iter()
+            .filter(|r| r.truth.is_some() && !r.corrupted())
+        {
+            if methods.last().is_none_or(|m| m.method != r.method) {
+                methods.push(MethodReach {
+                    method: r.method.clone(),
+                    clean_near: 0,
+                    abstained_near: 0,
+                    clean_far: 0,
+                    abstained_far: 0,
+                });
+            }
+            let m = methods.last_mut().expect("pushed above");
+            let abstained = usize::from(r.flag_set.abstained);
+            if far(r) {
+                m.clean_far += 1;
+                m.abstained_far += abstained;
+            } else {
+                m.clean_near += 1;
+                m.abstained_near += abstained;
+            }
+        }
+        let frames = distances.len();
+        let far_frames = distances.iter().filter(|&&d| d > REACH_MM).count();
+        distances.sort_by(f64::total_cmp);
+        let median_mm = match frames % 2 {
+            1 => distances[frames / 2],
+            _ => 0.5 * (distances[frames / 2 - 1] + distances[frames / 2]),
+        };
+        Some(Self {
+            within_mm: REACH_MM,
+            frames,
+            far_frames,
+            median_mm,
+            methods,
+        })
+    }
+
+    /// The run's line for the printed tables, when a tenth or more of its test frames are out of
+    /// reach (else `None`: the calibration motion covers the test).
+    pub fn note(&self, run: &str) -> Option<String> {
+        if self.far_frames * 10 < self.frames {
+            return None;
+        }
+        let share = |n: usize, of: usize| match of {
+            0 => "—".to_string(),
+            _ => format!("{:.1} %", 100.0 * n as f64 / of as f64),
+        };
+        let methods: Vec<String> = (self.methods.iter())
+            .filter(|m| m.abstained_near + m.abstained_far > 0)
+            .map(|m| {
+                let near = share(m.abstained_near, m.clean_near);
+                let far = share(m.abstained_far, m.clean_far);
+                format!("{} {near} / {far}", m.method)
+            })
+            .collect();
+        let mut line = format!(
+            "{run}: {} of {} test frames lie over {} mm from every calibration pose (median \
+             {:.2} mm); regions and abstention limits hold for frames like the calibration \
+             motion's",
+            self.far_frames, self.frames, self.within_mm, self.median_mm
+        );
+        if !methods.is_empty() {
+            line.push_str(&format!(
+                ". Clean frames abstained on, near / far: {}",
+                methods.join(", ")
+            ));
+        }
+        Some(line)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::PoseEstimate;
+
+    fn record(method: &str, frame: usize, truth: [f64; 2], abstained: bool) -> FrameRecord {
+        let mut estimate = PoseEstimate {
+            pose: Some(truth),
+            ..PoseEstimate::default()
+        };
+        estimate.flags.abstained = abstained;
+        FrameRecord::new(method, "test0", frame, 0.0, Some(truth), &estimate, &[])
+    }
+
+    #[test]
+    fn frames_beyond_the_reach_are_counted_with_each_methods_abstentions() {
+        let calibration = [[0.0, 40.0], [1.0, 40.0]];
+        // Distances 0, 0.5, 2 and 3 mm from the nearest calibration pose.
+        let truths = [[0.0, 40.0], [1.5, 40.0], [3.0, 40.0], [0.0, 37.0]];
+        let mut records = Vec::new();
+        for method in ["a", "b"] {
+            for (i, &t) in truths.iter().enumerate() {
+                records.push(record(method, i, t, method == "b" && i >= 2));
+            }
+        }
+        let reach = CalibrationReach::of(&calibration, &records).unwrap();
+        assert_eq!((reach.frames, reach.far_frames), (4, 2));
+        assert_eq!(reach.median_mm, 1.25);
+        assert_eq!(reach.methods.len(), 2);
+        let b = &reach.methods[1];
+        assert_eq!(
+            (b.clean_near, b.abstained_near, b.clean_far, b.abstained_far),
+            (2, 0, 2, 2)
+        );
+        let note = reach.note("run").unwrap();
+        assert!(note.contains("2 of 4 test frames lie over 1 mm"), "{note}");
+        assert!(note.contains("b 0.0 % / 100.0 %"), "{note}");
+        assert!(!note.contains(" a "), "a abstained nowhere: {note}");
+    }
+
+    #[test]
+    fn a_test_on_the_calibration_motion_is_within_reach() {
+        let calibration = [[0.0, 40.0], [0.5, 40.0], [1.0, 40.0]];
+        let records: Vec<_> = (calibration.iter().enumerate())
+            .map(|(i, &t)| record("a", i, t, false))
+            .collect();
+        let reach = CalibrationReach::of(&calibration, &records).unwrap();
+        assert_eq!((reach.far_frames, reach.median_mm), (0, 0.0));
+        assert_eq!(reach.note("run"), None);
+        assert_eq!(CalibrationReach::of(&[], &records), None);
+        assert_eq!(CalibrationReach::of(&calibration, &[]), None);
+    }
+}
