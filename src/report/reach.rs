@@ -3,6 +3,8 @@
 //! states how many of its test poses the calibration motion came near, and each method's clean
 //! abstentions on either side (docs/results.md, "Clean abstentions off the file").
 
+use std::collections::HashMap;
+
 use serde::{Deserialize, Serialize};
 
 use super::FrameRecord;
@@ -54,20 +56,20 @@ impl CalibrationReach {
                 .fold(f64::INFINITY, f64::min)
         };
         let first = records.first()?.method.clone();
-        // Every method sees the same frames: the distances come from the first method's.
-        let mut distances: Vec<f64> = (records.iter())
+        // Every method sees the same frames: each frame's distance once, from the first
+        // method's records.
+        let distance: HashMap<(&str, usize), f64> = (records.iter())
             .filter(|r| r.method == first)
-            .filter_map(|r| r.truth.map(nearest))
+            .filter_map(|r| Some(((r.motion.as_str(), r.frame), nearest(r.truth?))))
             .collect();
-        if distances.is_empty() {
+        if distance.is_empty() {
             return None;
         }
-        let far = |r: &FrameRecord| r.truth.is_some_and(|p| nearest(p) > REACH_MM);
         let mut methods: Vec<MethodReach> = Vec::new();
-        for r in records
-            .iter()
-            .filter(|r| r.truth.is_some() && !r.corrupted())
-        {
+        for r in records.iter().filter(|r| !r.corrupted()) {
+            let Some(&d) = distance.get(&(r.motion.as_str(), r.frame)) else {
+                continue;
+            };
             if methods.last().is_none_or(|m| m.method != r.method) {
                 methods.push(MethodReach {
                     method: r.method.clone(),
@@ -79,7 +81,7 @@ impl CalibrationReach {
             }
             let m = methods.last_mut().expect("pushed above");
             let abstained = usize::from(r.flag_set.abstained);
-            if far(r) {
+            if d > REACH_MM {
                 m.clean_far += 1;
                 m.abstained_far += abstained;
             } else {
@@ -87,6 +89,7 @@ impl CalibrationReach {
                 m.abstained_near += abstained;
             }
         }
+        let mut distances: Vec<f64> = distance.into_values().collect();
         let frames = distances.len();
         let far_frames = distances.iter().filter(|&&d| d > REACH_MM).count();
         distances.sort_by(f64::total_cmp);
