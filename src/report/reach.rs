@@ -29,7 +29,7 @@ pub struct CalibrationReach {
 }
 
 /// One method's clean frames near and far from the calibration motion, and its abstentions there.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct MethodReach {
     /// The method.
     pub method: String,
@@ -73,10 +73,7 @@ impl CalibrationReach {
             if methods.last().is_none_or(|m| m.method != r.method) {
                 methods.push(MethodReach {
                     method: r.method.clone(),
-                    clean_near: 0,
-                    abstained_near: 0,
-                    clean_far: 0,
-                    abstained_far: 0,
+                    ..MethodReach::default()
                 });
             }
             let m = methods.last_mut().expect("pushed above");

@@ -94,30 +94,38 @@ fn struck_every_fifth_frame() -> Vec<(f64, [f64; 2], Vec<Option<f64>>)> {
         .collect()
 }
 
+/// The filter's estimates over [`struck_every_fifth_frame`] (2,000 particles, σ and ε fixed).
+fn on_struck_path(recovery_share: f64, score: FilterScore) -> Vec<PoseEstimate> {
+    let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
+    let settings = ParticleSettings {
+        particles: 2_000,
+        motion_noise: Some(1.0),
+        outlier_share: Some(0.001),
+        recovery_share,
+        score,
+        ..ParticleSettings::default()
+    };
+    let filter =
+        ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps, 4).unwrap();
+    let mut motion = FilterMotion::with_threads(&filter, false);
+    (struck_every_fifth_frame().iter())
+        .map(|(t, _, row)| motion.next(*t, row).unwrap())
+        .collect()
+}
+
 #[test]
 fn the_recovery_share_brings_the_cloud_back_after_struck_frames() {
-    let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
     let frames = struck_every_fifth_frame();
     // Mean error on the clean frames right after a struck one.
     let after_struck = |recovery_share: f64| {
-        let settings = ParticleSettings {
-            particles: 2_000,
-            motion_noise: Some(1.0),
-            outlier_share: Some(0.001),
-            recovery_share,
-            ..ParticleSettings::default()
-        };
-        let filter =
-            ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps.clone(), 4)
-                .unwrap();
-        let mut motion = FilterMotion::with_threads(&filter, false);
-        let mut errors = Vec::new();
-        for (k, (t, q, row)) in frames.iter().enumerate() {
-            let pose = motion.next(*t, row).unwrap().pose.unwrap();
-            if k % 5 == 0 && k > 0 {
-                errors.push(((pose[0] - q[0]).powi(2) + (pose[1] - q[1]).powi(2)).sqrt());
-            }
-        }
+        let estimates = on_struck_path(recovery_share, FilterScore::default());
+        let errors: Vec<f64> = (frames.iter().zip(&estimates).enumerate())
+            .filter(|(k, _)| k % 5 == 0 && *k > 0)
+            .map(|(_, ((_, q, _), e))| {
+                let pose = e.pose.unwrap();
+                ((pose[0] - q[0]).powi(2) + (pose[1] - q[1]).powi(2)).sqrt()
+            })
+            .collect();
         errors.iter().sum::<f64>() / errors.len() as f64
     };
     let (off, on) = (after_struck(0.0), after_struck(0.3));
@@ -129,30 +137,11 @@ fn the_recovery_share_brings_the_cloud_back_after_struck_frames() {
 
 #[test]
 fn the_posterior_score_reads_a_right_estimate_after_a_struck_frame_as_good() {
-    let maps = fitted_continuous(6, 8, 20, 0.01, false, 2);
-    let frames = struck_every_fifth_frame();
-    let run = |recovery_share: f64, score: FilterScore| {
-        let settings = ParticleSettings {
-            particles: 2_000,
-            motion_noise: Some(1.0),
-            outlier_share: Some(0.001),
-            recovery_share,
-            score,
-            ..ParticleSettings::default()
-        };
-        let filter =
-            ParticleFilter::from_maps(&settings, &TemporalSettings::default(), maps.clone(), 4)
-                .unwrap();
-        let mut motion = FilterMotion::with_threads(&filter, false);
-        (frames.iter())
-            .map(|(t, _, row)| motion.next(*t, row).unwrap())
-            .collect::<Vec<_>>()
-    };
     let score = |e: &PoseEstimate| e.detection_score.unwrap();
     for recovery_share in [0.0, 0.3] {
         let (posterior, predictive) = (
-            run(recovery_share, FilterScore::Posterior),
-            run(recovery_share, FilterScore::Predictive),
+            on_struck_path(recovery_share, FilterScore::Posterior),
+            on_struck_path(recovery_share, FilterScore::Predictive),
         );
         // The score moves nothing else.
         for (a, b) in posterior.iter().zip(&predictive) {
