@@ -418,6 +418,11 @@ pub(super) fn write_sweep_report(
         "aurc_corrupted",
         "limit_rms",
         "efficiency",
+        "calibration_far_frames",
+        "coverage_clean_near",
+        "coverage_clean_far",
+        "abstained_clean_near",
+        "abstained_clean_far",
     ])?;
     for s in all_runs {
         for m in &s.methods {
@@ -427,6 +432,8 @@ pub(super) fn write_sweep_report(
             let states = states_text(evidential, " ");
             let f = m.faults.as_ref();
             let c = m.confidence.as_ref();
+            let reach = s.calibration_reach.as_ref();
+            let method_reach = reach.and_then(|r| r.methods.iter().find(|r| r.method == m.method));
             let expected = match evidential {
                 Some(_) => s.expect.max_mean_error,
                 None => s
@@ -478,6 +485,11 @@ pub(super) fn write_sweep_report(
                 num(c.and_then(|c| c.corrupted.as_ref()).map(|r| r.aurc))?,
                 num(s.limit.as_ref().and_then(|l| l.rms))?,
                 num(m.efficiency)?,
+                reach.map_or(String::new(), |r| r.far_frames.to_string()),
+                num(method_reach.and_then(|m| m.coverage().0))?,
+                num(method_reach.and_then(|m| m.coverage().1))?,
+                method_reach.map_or(String::new(), |m| m.abstained_near.to_string()),
+                method_reach.map_or(String::new(), |m| m.abstained_far.to_string()),
             ])?;
         }
     }

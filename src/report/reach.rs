@@ -1,7 +1,7 @@
 //! How far the test frames lie from the calibration motion: the regions and abstention limits
 //! are order statistics of the calibration frames and hold for test frames like them, so a run
 //! states how many of its test poses the calibration motion came near, and each method's clean
-//! abstentions on either side (docs/results.md, "Clean abstentions off the file").
+//! coverage and abstentions on either side (docs/results.md, "Clean abstentions off the file").
 
 use std::collections::HashMap;
 
@@ -24,11 +24,13 @@ pub struct CalibrationReach {
     pub far_frames: usize,
     /// Median distance (mm) of a test pose from its nearest calibration pose.
     pub median_mm: f64,
-    /// Each method's clean frames and abstentions, near and far.
+    /// Each method's clean frames, coverage and abstentions, near and far.
     pub methods: Vec<MethodReach>,
 }
 
-/// One method's clean frames near and far from the calibration motion, and its abstentions there.
+/// One method's clean frames near and far from the calibration motion, its abstentions there,
+/// and how many of their regions hold the truth (counted as the clean coverage is: frames with
+/// an estimate and a region, an abstention's whole-workspace region included).
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct MethodReach {
     /// The method.
@@ -37,10 +39,29 @@ pub struct MethodReach {
     pub clean_near: usize,
     /// Of `clean_near`, the frames the method abstained on.
     pub abstained_near: usize,
+    /// Of `clean_near`, the frames with an estimate and a region.
+    pub regions_near: usize,
+    /// Of `regions_near`, those whose region holds the truth.
+    pub covered_near: usize,
     /// Clean frames beyond the reach.
     pub clean_far: usize,
     /// Of `clean_far`, the frames the method abstained on.
     pub abstained_far: usize,
+    /// Of `clean_far`, the frames with an estimate and a region.
+    pub regions_far: usize,
+    /// Of `regions_far`, those whose region holds the truth.
+    pub covered_far: usize,
+}
+
+impl MethodReach {
+    /// The clean coverage of the regions near and far (`None` on a side without regions).
+    pub fn coverage(&self) -> (Option<f64>, Option<f64>) {
+        let share = |covered: usize, of: usize| (of > 0).then(|| covered as f64 / of as f64);
+        (
+            share(self.covered_near, self.regions_near),
+            share(self.covered_far, self.regions_far),
+        )
+    }
 }
 
 impl CalibrationReach {
@@ -78,12 +99,21 @@ impl CalibrationReach {
             }
             let m = methods.last_mut().expect("pushed above");
             let abstained = usize::from(r.flag_set.abstained);
+            let covers = r.region_covers.filter(|_| r.estimate.is_some());
+            let (region, covered) = (
+                usize::from(covers.is_some()),
+                usize::from(covers == Some(true)),
+            );
             if d > REACH_MM {
                 m.clean_far += 1;
                 m.abstained_far += abstained;
+                m.regions_far += region;
+                m.covered_far += covered;
             } else {
                 m.clean_near += 1;
                 m.abstained_near += abstained;
+                m.regions_near += region;
+                m.covered_near += covered;
             }
         }
         let mut distances: Vec<f64> = distance.into_values().collect();
@@ -133,6 +163,19 @@ impl CalibrationReach {
                 methods.join(", ")
             ));
         }
+        let side = |c: Option<f64>| c.map_or("—".to_string(), |c| format!("{c:.3}"));
+        let coverage: Vec<String> = (self.methods.iter())
+            .filter_map(|m| match m.coverage() {
+                (None, None) => None,
+                (near, far) => Some(format!("{} {} / {}", m.method, side(near), side(far))),
+            })
+            .collect();
+        if !coverage.is_empty() {
+            line.push_str(&format!(
+                ". Clean coverage near / far: {}",
+                coverage.join(", ")
+            ));
+        }
         Some(line)
     }
 }
@@ -149,6 +192,12 @@ mod tests {
         };
         estimate.flags.abstained = abstained;
         FrameRecord::new(method, "test0", frame, 0.0, Some(truth), &estimate, &[])
+    }
+
+    /// `record`, with a region that holds the truth or not.
+    fn with_region(mut record: FrameRecord, covers: bool) -> FrameRecord {
+        record.region_covers = Some(covers);
+        record
     }
 
     #[test]
@@ -171,10 +220,46 @@ mod tests {
             (b.clean_near, b.abstained_near, b.clean_far, b.abstained_far),
             (2, 0, 2, 2)
         );
+        // Neither method has regions: no coverage on either side.
+        assert_eq!(b.coverage(), (None, None));
         let note = reach.note("run").unwrap();
         assert!(note.contains("2 of 4 test frames lie over 1 mm"), "{note}");
         assert!(note.contains("b 0.0 % / 100.0 %"), "{note}");
         assert!(!note.contains(" a "), "a abstained nowhere: {note}");
+        assert!(!note.contains("coverage"), "{note}");
+    }
+
+    #[test]
+    fn coverage_is_counted_on_each_side_over_the_frames_with_a_region() {
+        let calibration = [[0.0, 40.0]];
+        // Near: covered, covered, missed; far: missed, covered, no region, no estimate.
+        let near = [[0.0, 40.0], [0.5, 40.0], [0.0, 40.5]];
+        let far = [[3.0, 40.0], [0.0, 43.0], [0.0, 45.0], [2.0, 40.0]];
+        let mut records = vec![
+            with_region(record("a", 0, near[0], false), true),
+            with_region(record("a", 1, near[1], false), true),
+            with_region(record("a", 2, near[2], false), false),
+            with_region(record("a", 3, far[0], false), false),
+            // An abstention's whole-workspace region holds the truth, as in the clean coverage.
+            with_region(record("a", 4, far[1], true), true),
+            record("a", 5, far[2], false),
+            with_region(record("a", 6, far[3], false), true),
+        ];
+        records[6].estimate = None;
+        let reach = CalibrationReach::of(&calibration, &records).unwrap();
+        let a = &reach.methods[0];
+        assert_eq!(
+            (a.regions_near, a.covered_near, a.regions_far, a.covered_far),
+            (3, 2, 2, 1)
+        );
+        assert_eq!((a.clean_near, a.clean_far), (3, 4));
+        let (near, far) = a.coverage();
+        assert_eq!((near, far), (Some(2.0 / 3.0), Some(0.5)));
+        let note = reach.note("run").unwrap();
+        assert!(
+            note.ends_with("Clean coverage near / far: a 0.667 / 0.500"),
+            "{note}"
+        );
     }
 
     #[test]

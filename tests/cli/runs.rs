@@ -93,6 +93,7 @@ fn sweep_check_fails_on_regression_and_shards_merge() {
     ] {
         assert!(out_dir.join(file).is_file(), "{file} missing");
     }
+    assert_reach_columns_match_the_json(&out_dir);
     // Two shards cover the three variants; merged, they give the same numbers.
     let mut shard_files = Vec::new();
     for shard in ["1/2", "2/2"] {
@@ -435,4 +436,46 @@ fn the_scale_scenario_runs_end_to_end_within_its_expectations() {
     );
     assert_eq!(results["methods"][0]["method"], "evidential");
     assert_eq!(results["methods"][0]["mean_group_size"], 32.0);
+}
+
+/// `sweep.csv`'s calibration-reach columns hold what `sweep.json`'s `calibration_reach` counts,
+/// row by row.
+fn assert_reach_columns_match_the_json(out_dir: &std::path::Path) {
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out_dir.join("sweep.json")).unwrap())
+            .unwrap();
+    let mut csv = csv::Reader::from_path(out_dir.join("sweep.csv")).unwrap();
+    let header = csv.headers().unwrap().clone();
+    let column = |name: &str| header.iter().position(|h| h == name).expect(name);
+    let (far, near_cov, far_cov, near_abst, far_abst) = (
+        column("calibration_far_frames"),
+        column("coverage_clean_near"),
+        column("coverage_clean_far"),
+        column("abstained_clean_near"),
+        column("abstained_clean_far"),
+    );
+    let mut rows_with_regions = 0;
+    for row in csv.records() {
+        let row = row.unwrap();
+        let run = (json["runs"].as_array().unwrap().iter())
+            .find(|r| r["scenario"] == row[0] && r["seed"].as_u64() == row[1].parse().ok())
+            .expect("the row's run");
+        let reach = &run["calibration_reach"];
+        assert_eq!(row[far], reach["far_frames"].to_string());
+        let method = (reach["methods"].as_array().unwrap().iter())
+            .find(|m| m["method"] == row[2])
+            .expect("the row's method");
+        assert_eq!(row[near_abst], method["abstained_near"].to_string());
+        assert_eq!(row[far_abst], method["abstained_far"].to_string());
+        let share = |covered: &str, of: &str| {
+            let of = method[of].as_u64().unwrap();
+            (of > 0).then(|| method[covered].as_u64().unwrap() as f64 / of as f64)
+        };
+        let cell = |i: usize| (!row[i].is_empty()).then(|| row[i].parse::<f64>().unwrap());
+        assert_eq!(cell(near_cov), share("covered_near", "regions_near"));
+        assert_eq!(cell(far_cov), share("covered_far", "regions_far"));
+        rows_with_regions += usize::from(cell(far_cov).is_some());
+    }
+    // Every method but the centre gives regions, in each of the 3 variants.
+    assert_eq!(rows_with_regions, 12);
 }
