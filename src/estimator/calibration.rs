@@ -25,6 +25,10 @@ use super::{MotionTracker, PlausibilityRegion, PoseEstimate, PoseEstimator, Trai
 use crate::planar::{bounding_box, distance, Rect};
 use crate::range::within;
 
+#[path = "calibration_cells.rs"]
+mod cells;
+pub use cells::CellRadii;
+
 /// The `[confidence]` section: the levels every method's regions and abstentions are held to.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -42,6 +46,11 @@ pub struct ConfidenceSettings {
     /// carry it.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub render_check: bool,
+    /// A region quantile per cell of an nx × ny grid over the workspace, by where the estimate
+    /// fell (Mondrian conformal, `calibration_cells.rs`), so that the coverage holds part by part
+    /// where each cell has calibration frames enough; `None` (the default): one quantile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cells: Option<[usize; 2]>,
 }
 
 impl Default for ConfidenceSettings {
@@ -51,6 +60,7 @@ impl Default for ConfidenceSettings {
             abstain_share: 0.01,
             max_region_share: 0.5,
             render_check: false,
+            cells: None,
         }
     }
 }
@@ -66,6 +76,9 @@ impl ConfidenceSettings {
             .map_err(|e| format!("`confidence.abstain_share`: {e}"))?;
         within(self.max_region_share, 0.01..=1.0)
             .map_err(|e| format!("`confidence.max_region_share`: {e}"))?;
+        if let Some(cells) = self.cells {
+            cells::check_cells(cells)?;
+        }
         Ok(())
     }
 }
@@ -95,6 +108,10 @@ pub struct Calibration {
     pub validation_frames: usize,
     /// Share of those frames on which it abstained.
     pub validation_abstained: f64,
+    /// With `[confidence] cells`: each cell's own quantile, which replaces `radius` for an
+    /// estimate in that cell.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cell_radii: Option<CellRadii>,
 }
 
 /// The poses a method estimated on its calibration frames, in order (`None`: no estimate).
@@ -213,6 +230,10 @@ impl Calibration {
         let detection_limit = (!detections.is_empty())
             .then(|| conformal_quantile(&detections, 1.0 - settings.abstain_share))
             .flatten();
+        let cell_radii = settings.cells.map(|cells| {
+            let poses: Vec<Option<[f64; 2]>> = estimates.iter().map(|e| e.pose).collect();
+            CellRadii::learn(cells, &workspace, &poses, &scores, settings.coverage)
+        });
         let mut calibration = Self {
             coverage: settings.coverage,
             radius: conformal_quantile(&scores, settings.coverage),
@@ -222,6 +243,7 @@ impl Calibration {
             workspace,
             validation_frames: estimates.len(),
             validation_abstained: 0.0,
+            cell_radii,
         };
         let abstained = estimates
             .iter()
@@ -278,7 +300,10 @@ impl Calibration {
             }
             return;
         };
-        let region = self.radius.and_then(|q| {
+        let radius = (self.cell_radii.as_ref())
+            .and_then(|c| c.radius_at(&self.workspace, pose))
+            .or(self.radius);
+        let region = radius.and_then(|q| {
             let (inverse, det) = regularised(Some(covariance), self.floor)?;
             let scale = 1.0 / (q * q);
             let shape = inverse.map(|row| row.map(|v| v * scale));
@@ -465,6 +490,9 @@ impl Calibration {
             positive("radius", q)?;
         }
         positive("floor", self.floor)?;
+        if let Some(cells) = &self.cell_radii {
+            cells.check()?;
+        }
         positive("max_region_area", self.max_region_area)?;
         if let Some(limit) = self.detection_limit {
             (!limit.is_nan())

@@ -75,6 +75,70 @@ fn calibrated_regions_hold_the_nominal_share_of_exchangeable_frames() {
     assert!((q - 2.146).abs() < 0.15, "radius {q}");
 }
 
+/// Frames at (2.5, 5) or (7.5, 5) in turn, stating σ = 0.1; the right half errs 3× what it states.
+fn halves(n: usize, seed: u64) -> (Vec<PoseEstimate>, Vec<[f64; 2]>) {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let unit = Normal::new(0.0, 1.0).unwrap();
+    (0..n)
+        .map(|i| {
+            let (t, spread) = match i % 2 {
+                0 => ([2.5, 5.0], 0.1),
+                _ => ([7.5, 5.0], 0.3),
+            };
+            let e = [
+                t[0] + spread * unit.sample(&mut rng),
+                t[1] + spread * unit.sample(&mut rng),
+            ];
+            (estimate(e, 0.1, None), t)
+        })
+        .unzip()
+}
+
+/// Each half's coverage of `calibration`'s regions on fresh frames.
+fn coverage_by_half(calibration: &Calibration) -> [f64; 2] {
+    let (test, truth) = halves(4000, 4);
+    let mut covered = [0; 2];
+    for (i, (mut e, t)) in test.into_iter().zip(truth).enumerate() {
+        calibration.apply(&mut e);
+        covered[i % 2] += usize::from(e.region.unwrap().covers(t));
+    }
+    covered.map(|c| c as f64 / 2000.0)
+}
+
+#[test]
+fn a_quantile_per_cell_holds_the_coverage_in_each_half_where_one_quantile_cannot() {
+    let (validation, truth) = halves(600, 3);
+    let one = Calibration::from_validation(
+        &validation,
+        &truth,
+        workspace(),
+        &ConfidenceSettings::default(),
+    );
+    let [left, right] = coverage_by_half(&one);
+    // One quantile: right over all frames, too wide where the method is honest, too narrow
+    // where it is overconfident.
+    assert!(left > 0.97 && right < 0.8, "{left} {right}");
+    let settings = ConfidenceSettings {
+        cells: Some([2, 1]),
+        ..ConfidenceSettings::default()
+    };
+    let per_cell = Calibration::from_validation(&validation, &truth, workspace(), &settings);
+    let cells = per_cell.cell_radii.as_ref().unwrap();
+    assert_eq!(cells.frames, vec![300, 300]);
+    for coverage in coverage_by_half(&per_cell) {
+        assert!((0.87..=0.93).contains(&coverage), "{coverage}");
+    }
+    // Written and read back with the model file's checks.
+    let text = serde_json::to_string(&per_cell).unwrap();
+    let back: Calibration = serde_json::from_str(&text).unwrap();
+    assert_eq!(back, per_cell);
+    assert!(back.check().is_ok());
+    // Without the setting the file has no such field, and one without it reads as before.
+    assert!(!serde_json::to_string(&one).unwrap().contains("cell_radii"));
+}
+
 #[test]
 fn scores_beyond_clean_validation_frames_and_total_conflict_abstain() {
     let settings = ConfidenceSettings::default();

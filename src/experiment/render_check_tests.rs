@@ -106,6 +106,7 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
             workspace: w,
             validation_frames: 100,
             validation_abstained: 0.0,
+            cell_radii: None,
         }),
     };
     let judged = |observed: &Observed, pose: [f64; 2]| {

@@ -175,6 +175,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("confidence.coverage", "Share of clean frames the regions hold."),
     ("confidence.abstain_share", "Share of clean calibration frames whose detection score may abstain."),
     ("confidence.max_region_share", "Largest region (share of the workspace) before abstaining."),
+    ("confidence.cells", "A region quantile per cell of an [nx, ny] grid over the workspace, by the estimate's cell (Mondrian conformal); cells with under 20 calibration frames keep the overall one."),
     ("confidence.render_check", "Also abstain where the robot rendered at the estimate misses the frame's silhouette (simulated runs only)."),
     ("methods", "Settings of a registered method by its name (methods.NAME)."),
     ("methods.*", "That method's own settings."),
