@@ -117,7 +117,7 @@ fn a_quantile_per_cell_holds_the_coverage_in_each_half_where_one_quantile_cannot
         &ConfidenceSettings::default(),
     );
     let [left, right] = coverage_by_half(&one);
-    // One quantile: right over all frames, too wide where the method is honest, too narrow
+    // One quantile: about right over all frames, too wide where the method is honest, too narrow
     // where it is overconfident.
     assert!(left > 0.97 && right < 0.8, "{left} {right}");
     let settings = ConfidenceSettings {
