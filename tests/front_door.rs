@@ -82,9 +82,10 @@ selection = { policy = "lowest_conflict", min_size = 2 }
 name = "map"
 set = { "track.estimator" = "map", "track.constructor" = "bayesian" }
 
+# Also a region quantile per half of the workspace: the model files carry it to `track`.
 [[sweep.variant]]
 name = "sparse"
-set = { "sample.keep_every" = 2 }
+set = { "sample.keep_every" = 2, "confidence.cells" = [2, 1] }
 "#;
 
 /// Tracks the scenario's test motion (as `simulate --scenario` writes it) with a model file and
@@ -175,6 +176,22 @@ fn run_and_sweep_models_track_to_the_runs_own_estimates() {
         let run_dir = sweep_out.join(format!("door-{variant}"));
         assert_model_reproduces_run(dir.path(), &scenario, Some(variant), &run_dir);
     }
+    // The sparse variant's regions came from a half's own quantile where the half had frames
+    // enough, and `track` gave the same (above).
+    let model: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(sweep_out.join("door-sparse/model-continuous.json")).unwrap(),
+    )
+    .unwrap();
+    let cells = &model["calibration"]["cell_radii"];
+    assert_eq!(cells["cells"], serde_json::json!([2, 1]), "{model}");
+    assert!(
+        cells["radii"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|r| r.is_number()),
+        "{cells}"
+    );
     // The variant name can also be given in full; an unknown one lists the known ones.
     let bad = evitrack(&[
         "simulate",
