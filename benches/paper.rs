@@ -6,7 +6,7 @@ use evitrack::experiment::{run_all, Workbench};
 use evitrack::scenario::ScenarioSet;
 
 fn paper_sweep(c: &mut Criterion) {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/paper.toml");
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenarios/paper.toml");
     let set = ScenarioSet::load(std::path::Path::new(path)).expect("paper.toml is valid");
     let mut group = c.benchmark_group("paper_table");
     group.sample_size(10);
