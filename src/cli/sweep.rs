@@ -434,6 +434,7 @@ pub(super) fn write_sweep_report(
             let c = m.confidence.as_ref();
             let reach = s.calibration_reach.as_ref();
             let method_reach = reach.and_then(|r| r.methods.iter().find(|r| r.method == m.method));
+            let (coverage_near, coverage_far) = method_reach.map_or((None, None), |m| m.coverage());
             let expected = match evidential {
                 Some(_) => s.expect.max_mean_error,
                 None => s
@@ -486,8 +487,8 @@ pub(super) fn write_sweep_report(
                 num(s.limit.as_ref().and_then(|l| l.rms))?,
                 num(m.efficiency)?,
                 reach.map_or(String::new(), |r| r.far_frames.to_string()),
-                num(method_reach.and_then(|m| m.coverage().0))?,
-                num(method_reach.and_then(|m| m.coverage().1))?,
+                num(coverage_near)?,
+                num(coverage_far)?,
                 method_reach.map_or(String::new(), |m| m.abstained_near.to_string()),
                 method_reach.map_or(String::new(), |m| m.abstained_far.to_string()),
             ])?;
