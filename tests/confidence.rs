@@ -5,6 +5,7 @@
 
 use std::collections::HashMap;
 
+use evitrack::estimator::RenderSource;
 use evitrack::report::{ConfidenceSummary, RunSummary};
 
 /// The variants of `scenarios/confidence.toml` named in `variants`, each meeting its
@@ -165,7 +166,8 @@ fn the_confidence_sweep_under_salt_and_pepper_and_a_dark_box_meets_the_readme_st
 
 /// With `confidence.render_check` the continuous tracker, the GP and the particle filter cover or
 /// abstain on more than 0.90 of the dark box's struck frames (without it 0.77–0.89 on seed 1),
-/// while each abstains on at most 3 % of the clean frames, the check's and its own rule's.
+/// while each abstains on at most 2 % of the clean frames, the check's and its own rule's. The
+/// silhouettes come from the sample frames, not the simulator's renderer.
 fn assert_the_render_check_catches_the_dark_box(runs: &HashMap<String, RunSummary>) {
     let checked = &runs["confidence-occluder-dark-checked"];
     for method in ["continuous", "gp", "particle_filter"] {
@@ -181,15 +183,17 @@ fn assert_the_render_check_catches_the_dark_box(runs: &HashMap<String, RunSummar
             (checked.frames - summary.faults.as_ref().expect("faults").corrupted_frames) as f64;
         let render = summary.render_check.as_ref().expect("a render check");
         assert!(
-            render.limit_px.is_some_and(|l| l < 100.0) && render.calibration_frames == 400,
+            render.limit_px.is_some_and(|l| l < 200.0)
+                && render.calibration_frames == 400
+                && render.from == RenderSource::Samples,
             "{method}: {render:?}"
         );
         assert!(
-            render.abstained_clean as f64 <= 0.03 * clean,
+            render.abstained_clean as f64 <= 0.02 * clean,
             "{method}: {render:?}"
         );
         assert!(
-            after.abstained_clean as f64 <= 0.03 * clean,
+            after.abstained_clean as f64 <= 0.02 * clean,
             "{method}: {after:?}"
         );
     }

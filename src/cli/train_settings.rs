@@ -168,11 +168,11 @@ pub(super) fn train_settings(
         ..base.with_values(&values)?
     };
     if scenario.confidence.render_check {
-        // The check renders the simulator's robot at each estimate; recorded frames have no
-        // such model, and a model file no place for its limits.
+        // The check's limits are learned in a run, on the calibration motion's frames against
+        // the method's estimates there; a model file has no place for them.
         eprintln!(
-            "note: `confidence.render_check` is skipped: `train` fits on recorded frames and \
-             cannot render the robot; only `run` and `sweep` on simulated scenarios use it"
+            "note: `confidence.render_check` is skipped: a model file does not carry its \
+             limits; only `run` and `sweep` on simulated scenarios use it"
         );
     }
     Ok(scenario.check_estimators(&SettingsContext {

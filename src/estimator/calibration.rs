@@ -40,17 +40,48 @@ pub struct ConfidenceSettings {
     /// A region larger than this share of the workspace's area makes the method abstain.
     pub max_region_share: f64,
     /// The run's render check (simulated scenarios only, off by default): each method but the
-    /// centre also abstains where the robot rendered at its estimate differs from the frame's
-    /// silhouette by more pixels than on `abstain_share` of its clean calibration frames
+    /// centre also abstains where the robot's silhouette at its estimate differs from the
+    /// frame's by more pixels than on `abstain_share` of its clean calibration frames
     /// (`crate::experiment::RenderCheck`). The harness applies it; fits and model files do not
     /// carry it.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub render_check: bool,
+    /// Where the render check takes the silhouette at an estimate from.
+    #[serde(default, skip_serializing_if = "RenderSource::is_samples")]
+    pub render_from: RenderSource,
+    /// Share of clean calibration frames the render check may make abstain, beside the
+    /// detection score's `abstain_share`: half of its default, so the two together abstain on
+    /// about 1.5 % of frames like the calibration motion's.
+    #[serde(skip_serializing_if = "is_default_render_share")]
+    pub render_share: f64,
     /// A region quantile per cell of an nx × ny grid over the workspace, by where the estimate
     /// fell (Mondrian conformal, `calibration_cells.rs`), so that the coverage holds part by part
     /// where each cell has calibration frames enough; `None` (the default): one quantile.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cells: Option<[usize; 2]>,
+}
+
+const DEFAULT_RENDER_SHARE: f64 = 0.005;
+
+fn is_default_render_share(share: &f64) -> bool {
+    *share == DEFAULT_RENDER_SHARE
+}
+
+/// Where the render check takes the robot's silhouette at an estimate from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RenderSource {
+    /// Predicted from the sample frames the run trains on: no model of the camera or the robot.
+    #[default]
+    Samples,
+    /// Rendered from the simulator's camera and robot: needs the exact image-formation model.
+    Simulator,
+}
+
+impl RenderSource {
+    fn is_samples(&self) -> bool {
+        *self == Self::Samples
+    }
 }
 
 impl Default for ConfidenceSettings {
@@ -60,6 +91,8 @@ impl Default for ConfidenceSettings {
             abstain_share: 0.01,
             max_region_share: 0.5,
             render_check: false,
+            render_from: RenderSource::Samples,
+            render_share: DEFAULT_RENDER_SHARE,
             cells: None,
         }
     }
@@ -74,6 +107,8 @@ impl ConfidenceSettings {
         within(self.coverage, 0.5..=0.999).map_err(|e| format!("`confidence.coverage`: {e}"))?;
         within(self.abstain_share, 0.0..=0.5)
             .map_err(|e| format!("`confidence.abstain_share`: {e}"))?;
+        within(self.render_share, 0.0..=0.5)
+            .map_err(|e| format!("`confidence.render_share`: {e}"))?;
         within(self.max_region_share, 0.01..=1.0)
             .map_err(|e| format!("`confidence.max_region_share`: {e}"))?;
         if let Some(cells) = self.cells {

@@ -23,7 +23,9 @@ mod temporal;
 pub mod test_maps;
 
 pub(crate) use calibration::conformal_quantile;
-pub use calibration::{underlying, Calibrated, Calibration, CellRadii, ConfidenceSettings};
+pub use calibration::{
+    underlying, Calibrated, Calibration, CellRadii, ConfidenceSettings, RenderSource,
+};
 pub use centre::{Centre, CentreSettings};
 pub(crate) use continuous::grid_nodes;
 pub use continuous::{

@@ -12,11 +12,13 @@ mod fits;
 mod limit;
 mod render_check;
 mod sample;
+mod sample_silhouettes;
 mod workbench;
 
 pub use limit::{frame_bounds, noise_model};
 pub use render_check::{render_limit, Observed, RenderCheck};
 pub use sample::{sample_trajectory, SampleTrajectory};
+pub use sample_silhouettes::SampleSilhouettes;
 pub use workbench::{Step, Workbench};
 
 // Everything a run produced lives with the files written from it.
@@ -74,6 +76,9 @@ pub enum ExperimentError {
     /// The scenario has no TOML form to keep beside its results.
     #[error(transparent)]
     Scenario(#[from] crate::scenario::ScenarioError),
+    /// The render check cannot be set up.
+    #[error("the render check: {0}")]
+    RenderCheck(String),
     /// The variant was not run (a worker thread stopped early).
     #[error("the variant was not run")]
     NotRun,
@@ -138,7 +143,11 @@ pub fn run(
 
     // The render check's calibration frames, and then each test frame's silhouette.
     let render = match s.confidence.render_check {
-        true => Some(render_check::Harness::new(scenario, bench)?),
+        true => Some(render_check::Harness::new(
+            scenario,
+            bench,
+            &sample.dataset,
+        )?),
         false => None,
     };
     let mut observed = Vec::new();
@@ -275,8 +284,9 @@ pub fn run(
         progress(&track_stage, frames, frames);
         let track_seconds = clock.elapsed().as_secs_f64();
         let mut summary = MethodSummary::new(method.name(), &method_records, per_motion);
-        summary.render_check = (render.as_ref().zip(render_limit))
-            .map(|(r, l)| RenderCheckSummary::of(l.limit, r.calibration_frames(), &method_records));
+        summary.render_check = (render.as_ref().zip(render_limit)).map(|(r, l)| {
+            RenderCheckSummary::of(r.source(), l.limit, r.calibration_frames(), &method_records)
+        });
         methods.push(summary);
         timings.methods.push(MethodTimings {
             method: method.name().to_string(),

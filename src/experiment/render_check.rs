@@ -1,17 +1,23 @@
 //! The render check (`[confidence] render_check`): analysis by synthesis in the harness.
 //!
-//! The robot is rendered noise-free at a method's estimate from the kinematics alone
-//! ([`FiveBar::inverse`] and [`FiveBar::elbows`]: capsules pivot → elbow → end-effector and the
-//! end-effector's disc, with the geometry's radii) through the simulator's own [`Camera`], one
-//! sample per pixel (a pixel is in where its centre is). Its silhouette is compared with the
-//! frame's as the features see it ([`silhouette_pixels`]: the same threshold and largest
-//! component): the mismatch is the number of pixels where the two differ. A method abstains where
-//! the mismatch lies above the ⌈(n+1)(1 − a)⌉-th smallest of its own mismatches on the n clean
-//! calibration frames (`a` = `confidence.abstain_share`, the rule of its detection-score limit).
+//! The robot's silhouette at a method's estimate is compared with the frame's as the features
+//! see it ([`silhouette_pixels`]: the same threshold and largest component): the mismatch is the
+//! number of pixels where the two differ. A method abstains where the mismatch lies above the
+//! ⌈(n+1)(1 − a)⌉-th smallest of its own mismatches on the n clean calibration frames (`a` =
+//! `confidence.render_share`, half the detection score's share by default).
 //!
-//! It needs the exact image-formation model: the simulator's camera and robot. A model file
-//! carries neither, so `track` cannot use it, nor can a user's recorded frames; half a pixel of
-//! camera error already spoils it (docs/results.md).
+//! The silhouette at the estimate comes from one of two places (`confidence.render_from`):
+//! - `samples` (the default): predicted from the sample frames a run trains on
+//!   ([`SampleSilhouettes`]), so the check needs no model of the camera or the robot, only
+//!   sample frames dense enough (the 1 mm mesh; docs/results.md);
+//! - `simulator`: rendered noise-free from the kinematics alone ([`FiveBar::inverse`] and
+//!   [`FiveBar::elbows`]: capsules pivot → elbow → end-effector and the end-effector's disc, with
+//!   the geometry's radii) through the simulator's own [`Camera`], one sample per pixel (a pixel
+//!   is in where its centre is). It needs the exact image-formation model: half a pixel of camera
+//!   error already spoils it (docs/results.md).
+//!
+//! Either way the limits are learned in the run; a model file does not carry them, so `track`
+//! does not check.
 //!
 //! **Undefined cases abstain.** An estimate the arms cannot reach (or not finite), no estimate,
 //! a frame without a silhouette (black, no contrast) or of another size than the camera's: the
@@ -23,11 +29,12 @@ use std::sync::Arc;
 
 use image::GrayImage;
 
+use super::sample_silhouettes::SampleSilhouettes;
 use super::{ExperimentError, Workbench};
 use crate::dataset::Dataset;
 use crate::estimator::{
     conformal_quantile, Calibrated, Calibration, Centre, EstimatorError, Method, PoseEstimate,
-    PoseEstimator,
+    PoseEstimator, RenderSource,
 };
 use crate::faults::FrameFaults;
 use crate::features::{silhouette_pixels, SilhouetteConfig};
@@ -69,12 +76,15 @@ impl Observed {
     }
 }
 
-/// Renders the robot at an estimate and compares it with a frame.
+/// Renders the robot at an estimate (or predicts its silhouette from the sample frames) and
+/// compares it with a frame.
 #[derive(Debug, Clone)]
 pub struct RenderCheck {
     camera: Camera,
     five_bar: FiveBar,
     silhouette: SilhouetteConfig,
+    /// Where set, the silhouette at an estimate is predicted from these, not rendered.
+    samples: Option<SampleSilhouettes>,
 }
 
 /// Packs row-major pixel flags into words.
@@ -103,6 +113,27 @@ impl RenderCheck {
             camera,
             five_bar: rig.five_bar,
             silhouette: silhouette.clone(),
+            samples: None,
+        })
+    }
+
+    /// The check that predicts the silhouette at an estimate from `sample`'s frames (those with
+    /// a pose and a silhouette) instead of rendering it; `None` when fewer than 3 have both.
+    pub fn with_samples(self, sample: &Dataset) -> Option<Self> {
+        let g = &self.camera.geometry;
+        let count = self.pixel_count();
+        let silhouettes = (sample.frames.iter()).filter_map(|frame| {
+            let truth = frame.truth?;
+            let Seen::Silhouette(words) = self.observe(&frame.image).0 else {
+                return None;
+            };
+            let pixels = (0..count).map(|i| words[i / 64] >> (i % 64) & 1 == 1);
+            Some(([truth.x, truth.y], pixels.collect()))
+        });
+        let samples = SampleSilhouettes::new(g.width as usize, g.height as usize, silhouettes)?;
+        Some(Self {
+            samples: Some(samples),
+            ..self
         })
     }
 
@@ -148,8 +179,12 @@ impl RenderCheck {
         Some(Scene { parts })
     }
 
-    /// The robot's silhouette rendered at `at`, packed as [`Observed`]'s.
+    /// The robot's silhouette at `at` (rendered, or predicted from the samples), packed as
+    /// [`Observed`]'s.
     pub fn rendered(&self, at: [f64; 2]) -> Option<Vec<u64>> {
+        if let Some(samples) = &self.samples {
+            return Some(pack(samples.predict(at)?.into_iter(), self.pixel_count()));
+        }
         let coverage = self.camera.coverage(&self.scene(at)?);
         Some(pack(coverage.iter().map(|&c| c >= 0.5), self.pixel_count()))
     }
@@ -172,11 +207,11 @@ impl RenderCheck {
     }
 }
 
-/// The limit of a method's mismatches: the ⌈(n+1)(1 − `abstain_share`)⌉-th smallest of its `n`
+/// The limit of a method's mismatches: the ⌈(n+1)(1 − `share`)⌉-th smallest of its `n`
 /// clean calibration frames' (infinite ones rank last); `None` when that rank is past the end
 /// or infinite, and then the check makes no frame abstain.
-pub fn render_limit(calibration: &[f64], abstain_share: f64) -> Option<f64> {
-    conformal_quantile(calibration, 1.0 - abstain_share)
+pub fn render_limit(calibration: &[f64], share: f64) -> Option<f64> {
+    conformal_quantile(calibration, 1.0 - share)
 }
 
 /// The check as a run uses it: the calibration motion's silhouettes, the limits learned on them,
@@ -186,7 +221,8 @@ pub(super) struct Harness {
     check: RenderCheck,
     /// The calibration motion's frames (`[calibration]`, else the validation motion).
     calibration: Vec<Observed>,
-    abstain_share: f64,
+    /// Share of clean calibration frames the check may make abstain.
+    share: f64,
 }
 
 /// A method's limit with the calibration its abstentions follow.
@@ -198,18 +234,30 @@ pub(super) struct MethodLimit {
 }
 
 impl Harness {
-    /// The check of `scenario`'s frames, its calibration motion's silhouettes taken.
+    /// The check of `scenario`'s frames, its calibration motion's silhouettes taken; `sample`
+    /// is the sample trajectory the run trains on.
     pub(super) fn new(
         scenario: &CheckedScenario,
         bench: &Workbench,
+        sample: &Dataset,
     ) -> Result<Self, ExperimentError> {
         let s = scenario.get();
-        let check = RenderCheck::new(&s.sim, &s.features.silhouette).map_err(|e| {
+        let mut check = RenderCheck::new(&s.sim, &s.features.silhouette).map_err(|e| {
             ExperimentError::Simulate {
                 what: "the render check's camera and robot".into(),
                 source: Arc::new(e),
             }
         })?;
+        if s.confidence.render_from == RenderSource::Samples {
+            let samples = sample.frames.len();
+            check = check.with_samples(sample).ok_or_else(|| {
+                ExperimentError::RenderCheck(format!(
+                    "fewer than 3 of the {samples} sample frames show a silhouette, too few to \
+                     predict one at an estimate; set `confidence.render_from = \"simulator\"` \
+                     or turn `confidence.render_check` off"
+                ))
+            })?;
+        }
         let master = s.seed;
         let (motion, part) = match (&s.calibration, &s.validation) {
             (Some(motion), _) => (motion, ScenarioPart::Calibration),
@@ -219,7 +267,7 @@ impl Harness {
                 return Ok(Self {
                     check,
                     calibration: Vec::new(),
-                    abstain_share: s.confidence.abstain_share,
+                    share: s.confidence.render_share,
                 })
             }
         };
@@ -227,8 +275,16 @@ impl Harness {
         Ok(Self {
             calibration: data.images().map(|image| check.observe(image)).collect(),
             check,
-            abstain_share: s.confidence.abstain_share,
+            share: s.confidence.render_share,
         })
+    }
+
+    /// Where the silhouette at an estimate comes from.
+    pub(super) fn source(&self) -> RenderSource {
+        match self.check.samples {
+            Some(_) => RenderSource::Samples,
+            None => RenderSource::Simulator,
+        }
     }
 
     /// The calibration motion's frames the limits are learned on.
@@ -311,7 +367,7 @@ impl Harness {
             .map(|(&pose, observed)| self.check.mismatch(observed, pose))
             .collect();
         Ok(MethodLimit {
-            limit: render_limit(&mismatches, self.abstain_share),
+            limit: render_limit(&mismatches, self.share),
             calibration,
         })
     }

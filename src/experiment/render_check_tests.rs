@@ -93,7 +93,7 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
     let harness = Harness {
         check: check.clone(),
         calibration: Vec::new(),
-        abstain_share: 0.01,
+        share: 0.01,
     };
     let limit = MethodLimit {
         limit: Some(50.0),
@@ -126,4 +126,45 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
     assert_eq!(judged(&check.observe(&black), at), (true, true));
     // Missing data, not evidence: a temporal method's prediction stands.
     assert_eq!(judged(&Observed::dropped(), at), (false, false));
+}
+
+#[test]
+fn silhouettes_predicted_from_the_sample_frames_explain_a_frame_and_tell_pose_errors() {
+    let (sim, renderer) = check();
+    // Sample frames on a 1 mm grid about the centre, as the default mesh has them.
+    let c = renderer.five_bar.workspace_centre();
+    let points = (-2..=2)
+        .flat_map(|j| (-2..=2).map(move |i| [c[0] + f64::from(i), c[1] + f64::from(j)]))
+        .collect();
+    let motion = crate::sim::Motion::Points { points };
+    let sample = crate::sim::simulate(&sim, &motion, 5, &mut |_, _| {}).expect("simulated");
+    let check = renderer
+        .clone()
+        .with_samples(&sample)
+        .expect("25 silhouettes");
+    let at = [c[0] + 0.37, c[1] - 0.42];
+    let observed = check.observe(&render_pose(&sim, at[0], at[1], 9).expect("rendered"));
+    let mismatches: Vec<f64> = [0.0, 0.1, 0.3, 1.0]
+        .iter()
+        .map(|&d| check.mismatch(&observed, Some([at[0] + 0.6 * d, at[1] - 0.8 * d])))
+        .collect();
+    assert!(mismatches.windows(2).all(|p| p[0] < p[1]), "{mismatches:?}");
+    // Not a renderer: the samples' noise and the interpolation add a few tens of pixels at the
+    // truth, where the rendered robot misses a few.
+    let rendered = renderer.mismatch(&observed, Some(at));
+    assert!(
+        rendered < mismatches[0] && mismatches[0] <= 80.0 && mismatches[3] > 500.0,
+        "{mismatches:?}, rendered {rendered}"
+    );
+    // Undefined cases as with the renderer.
+    assert!(check
+        .mismatch(&observed, Some([f64::NAN, 0.0]))
+        .is_infinite());
+    assert!(check.mismatch(&Observed::dropped(), Some(at)).is_infinite());
+    // Too few silhouettes to fit a plane: no check.
+    let two = crate::sim::Motion::Points {
+        points: vec![c, [c[0] + 1.0, c[1]]],
+    };
+    let two = crate::sim::simulate(&sim, &two, 5, &mut |_, _| {}).expect("simulated");
+    assert!(renderer.with_samples(&two).is_none());
 }

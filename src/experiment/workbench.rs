@@ -13,7 +13,7 @@ use super::ExperimentError;
 use crate::dataset::Dataset;
 use crate::estimator::{
     ConfidenceSettings, EstimatorError, EstimatorSettings, Labelled, Method, PoseEstimator,
-    TrainingSet,
+    RenderSource, TrainingSet,
 };
 use crate::external::ExternalError;
 use crate::features::{FeatureConfig, FeatureRows, FeatureSet};
@@ -242,6 +242,8 @@ fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> 
         // the render check is the harness's, after the fit.
         "confidence": ConfidenceSettings {
             render_check: false,
+            render_from: RenderSource::Samples,
+            render_share: ConfidenceSettings::default().render_share,
             ..settings.confidence.clone()
         },
         "features": data.feature_names,

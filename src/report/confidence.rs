@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::records::FrameRecord;
 use super::ErrorStats;
+use crate::estimator::RenderSource;
 
 /// Coverages at which the curve is sampled: 5 %, 10 %, …, 100 %.
 pub const CURVE_POINTS: usize = 20;
@@ -226,9 +227,12 @@ impl ConfidenceSummary {
 
 /// What the render check (`[confidence] render_check`) did to one method. Its limit is the
 /// run's: learned on the method's clean calibration frames, kept here, not in the model file
-/// (`track` cannot render).
+/// (`track` does not check).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RenderCheckSummary {
+    /// Where the silhouette at an estimate came from (`confidence.render_from`).
+    #[serde(default)]
+    pub from: RenderSource,
     /// Mismatches (pixels) above this made the method abstain (`None`: too few calibration
     /// frames, or the rank fell on an undefined one; then none did).
     pub limit_px: Option<f64>,
@@ -242,13 +246,19 @@ pub struct RenderCheckSummary {
 
 impl RenderCheckSummary {
     /// The summary of one method's `records`, checked against `limit_px`.
-    pub fn of(limit_px: Option<f64>, calibration_frames: usize, records: &[FrameRecord]) -> Self {
+    pub fn of(
+        from: RenderSource,
+        limit_px: Option<f64>,
+        calibration_frames: usize,
+        records: &[FrameRecord],
+    ) -> Self {
         let flagged = |corrupted: bool| {
             (records.iter())
                 .filter(|r| r.flag_set.render_mismatch && r.corrupted() == corrupted)
                 .count()
         };
         Self {
+            from,
             limit_px,
             calibration_frames,
             abstained_clean: flagged(false),
