@@ -1,7 +1,9 @@
 //! Simulated rig: rendering one frame (target ≤ 1 ms median) and driving through the dense mesh
-//! (target ≤ 0.5 s for 400 nodes).
+//! (target ≤ 0.5 s for 400 nodes); the render check's mismatch at an estimate, rendered by the
+//! simulator or predicted from the 400 sample frames, and learning those frames' silhouettes.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use evitrack::experiment::RenderCheck;
 use evitrack::sim::{Motion, Robot, SimSettings};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -74,5 +76,30 @@ fn simulate_mesh(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, render, drive_mesh, simulate_mesh);
+fn render_check(c: &mut Criterion) {
+    let s = SimSettings::default();
+    let sample = evitrack::sim::simulate(&s, &Motion::Mesh { spacing: 1.0 }, 7, &mut |_, _| {})
+        .expect("simulate");
+    let silhouette = evitrack::features::SilhouetteConfig::default();
+    let renderer = RenderCheck::new(&s, &silhouette).expect("default settings are valid");
+    let from_samples = (renderer.clone().with_samples(&sample)).expect("400 silhouettes");
+    let at = [0.37, 47.08];
+    let frame = evitrack::sim::render_pose(&s, at[0], at[1], 3).expect("rendered");
+    let observed = renderer.observe(&frame);
+    let estimate = Some([at[0] + 0.05, at[1] - 0.05]);
+    let mut group = c.benchmark_group("render_check");
+    group.bench_function("mismatch_simulator", |b| {
+        b.iter(|| black_box(renderer.mismatch(&observed, estimate)))
+    });
+    group.bench_function("mismatch_samples", |b| {
+        b.iter(|| black_box(from_samples.mismatch(&observed, estimate)))
+    });
+    group.sample_size(10);
+    group.bench_function("learn_400_sample_silhouettes", |b| {
+        b.iter(|| black_box(renderer.clone().with_samples(&sample).is_some()))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, render, drive_mesh, simulate_mesh, render_check);
 criterion_main!(benches);
