@@ -10,7 +10,7 @@
 //! and lasting allocations are added as if held at once, so it errs high.
 
 use crate::estimator::REFINE_SUBDIVISIONS;
-use crate::estimator::{grid_nodes, EstimatorSettings, Method, REFINE_MAX_POINTS};
+use crate::estimator::{grid_nodes, EstimatorSettings, Method, RenderSource, REFINE_MAX_POINTS};
 use crate::scenario::CheckedScenario;
 
 /// What a tiny run fills besides its parts (the binary's pages, buffers): its peak RSS was 22 MB.
@@ -274,6 +274,18 @@ pub fn of_run(scenario: &CheckedScenario) -> Result<Estimate, MemoryError> {
         setting: "the features and the motions' frames".into(),
         bytes: (held as u64).saturating_mul(features as u64 * 16),
     });
+    // The render check from the samples keeps a distance field per sample, 2 bytes a pixel.
+    let confidence = &s.confidence;
+    if confidence.render_check && confidence.render_from == RenderSource::Samples {
+        parts.push(Part {
+            what: format!(
+                "the render check's distance fields, {samples} samples of {} × {} px",
+                camera.width, camera.height
+            ),
+            setting: "confidence.render_check with render_from = \"samples\"".into(),
+            bytes: (samples as u64).saturating_mul(camera.width as u64 * camera.height as u64 * 2),
+        });
+    }
     parts.extend(fit_parts(&s.estimators, &s.estimator_settings(), &shape));
     Ok(Estimate {
         name: s.name.clone(),
@@ -518,6 +530,26 @@ mod tests {
         );
         assert_eq!(regrouped(7), one, "only whole groups of four are copied");
         assert_eq!(grid(&[Method::CONTINUOUS], 8), regrouped(8));
+    }
+
+    #[test]
+    fn the_render_check_from_the_samples_holds_a_field_per_sample() {
+        let fields = |scenario: &crate::scenario::Scenario| -> Option<u64> {
+            let estimate = of_run(&scenario.check().expect("valid")).expect("planned");
+            (estimate.parts.iter())
+                .find(|p| p.what.contains("distance fields"))
+                .map(|p| p.bytes)
+        };
+        let mut scenario = crate::scenario::Scenario {
+            name: "fields".into(),
+            ..Default::default()
+        };
+        assert_eq!(fields(&scenario), None, "off by default");
+        scenario.confidence.render_check = true;
+        // The default 1 mm mesh: 400 samples of 170 × 120 px, 2 bytes each.
+        assert_eq!(fields(&scenario), Some(400 * 170 * 120 * 2));
+        scenario.confidence.render_from = RenderSource::Simulator;
+        assert_eq!(fields(&scenario), None, "the renderer keeps none");
     }
 
     #[test]
