@@ -78,9 +78,11 @@ states = 4
 constructor = "consonant"
 selection = { policy = "lowest_conflict", min_size = 2 }
 
+# Also the render check from the sample frames (a share its 40 validation frames can set): the
+# model files carry its limits, and `track --samples` applies them.
 [[sweep.variant]]
 name = "map"
-set = { "track.estimator" = "map", "track.constructor" = "bayesian" }
+set = { "track.estimator" = "map", "track.constructor" = "bayesian", "confidence.render_check" = true, "confidence.render_share" = 0.05 }
 
 # Also a region quantile per half of the workspace: the model files carry it to `track`.
 [[sweep.variant]]
@@ -106,6 +108,15 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
         args.extend(["--variant", v]);
     }
     ok(evitrack(&args));
+    // The map variant's models carry the render check's limits: they need the sample frames.
+    let samples = dir.join(format!("samples-{label}"));
+    let checked = variant == Some("map");
+    if checked {
+        let mut args = args.clone();
+        args[4] = "sample";
+        args[6] = samples.to_str().unwrap();
+        ok(evitrack(&args));
+    }
     let methods = [
         "evidential",
         "evidential_temporal",
@@ -119,14 +130,18 @@ fn assert_model_reproduces_run(dir: &Path, scenario: &Path, variant: Option<&str
     for method in methods {
         let model = run_dir.join(evitrack::report::model_file_name(method));
         let estimates = dir.join(format!("est-{label}-{method}.csv"));
-        ok(evitrack(&[
+        let mut args = vec![
             "track",
             test.to_str().unwrap(),
             "--model",
             model.to_str().unwrap(),
             "--out",
             estimates.to_str().unwrap(),
-        ]));
+        ];
+        if checked && method != "centre" {
+            args.extend(["--samples", samples.to_str().unwrap()]);
+        }
+        ok(evitrack(&args));
         let tracked = rows_without_label(&estimates, method);
         let ran = rows_without_label(&run_dir.join("frames.csv"), method);
         assert_eq!(tracked.len(), 20);
@@ -192,6 +207,45 @@ fn run_and_sweep_models_track_to_the_runs_own_estimates() {
             .any(|r| r.is_number()),
         "{cells}"
     );
+    // The map variant's model files carry the render check's limits (applied by `track --samples`
+    // above, frame for frame); the check made some of the run's frames abstain.
+    let map = sweep_out.join("door-map");
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(map.join("model-continuous.json")).unwrap())
+            .unwrap();
+    assert!(
+        model["calibration"]["render_limit_px"].is_number(),
+        "{model}"
+    );
+    let frames = std::fs::read_to_string(map.join("frames.csv")).unwrap();
+    assert!(
+        frames.contains("render_mismatch"),
+        "no frame abstained by the check"
+    );
+    // Without --samples `track` says what it leaves out; with them, a model without a limit is
+    // refused.
+    let test = dir.path().join("test-map");
+    let samples = dir.path().join("samples-map");
+    let plain = evitrack(&[
+        "track",
+        test.to_str().unwrap(),
+        "--model",
+        map.join("model-continuous.json").to_str().unwrap(),
+    ]);
+    let plain = ok(plain);
+    let stderr = String::from_utf8_lossy(&plain.stderr);
+    assert!(stderr.contains("pass --samples"), "{stderr}");
+    let refused = evitrack(&[
+        "track",
+        test.to_str().unwrap(),
+        "--model",
+        map.join("model-centre.json").to_str().unwrap(),
+        "--samples",
+        samples.to_str().unwrap(),
+    ]);
+    assert_eq!(refused.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("no render-check limit"), "{stderr}");
     // The variant name can also be given in full; an unknown one lists the known ones.
     let bad = evitrack(&[
         "simulate",
@@ -577,3 +631,94 @@ fn the_manifests_polarity_is_honoured_or_refused() {
 }
 
 mod train_settings;
+
+/// `train` with `confidence.render_check` learns the check's limit on the validation frames and
+/// keeps it in the model file; `track --samples` then makes frames under a dark box abstain that
+/// it answers without the check.
+#[test]
+fn train_learns_the_render_check_and_track_applies_it_under_a_dark_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let simulate = |name: &str, seed: &str, motion: &str| {
+        ok(evitrack(&[
+            "simulate",
+            "--out",
+            &path(name),
+            "--seed",
+            seed,
+            "--motion",
+            motion,
+        ]));
+    };
+    simulate("sample", "1", r#"kind = "mesh", spacing = 1.0"#);
+    let path_motion = r#"kind = "random_path", seed = 5, speed = 6, duration = 10, fps = 10"#;
+    simulate("validation", "2", path_motion);
+    simulate("test", "3", &path_motion.replace("seed = 5", "seed = 9"));
+    // A dark box over part of every test frame.
+    for entry in std::fs::read_dir(dir.path().join("test/frames")).unwrap() {
+        let file = entry.unwrap().path();
+        let mut frame = image::open(&file).unwrap().to_luma8();
+        for y in 12..60 {
+            for x in 38..86 {
+                frame.put_pixel(x, y, image::Luma([0]));
+            }
+        }
+        frame.save(&file).unwrap();
+    }
+    let train = |extra: &[&str]| {
+        let mut args = vec![
+            "train",
+            &path("sample"),
+            "--validation",
+            &path("validation"),
+            "--method",
+            "continuous",
+            "--barycentre",
+            "--out",
+            &path("model.json"),
+        ]
+        .into_iter()
+        .map(String::from)
+        .collect::<Vec<_>>();
+        args.extend(extra.iter().map(|s| s.to_string()));
+        evitrack(&args.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let check = ["--set", "confidence.render_check=true"];
+    ok(train(
+        &[&check[..], &["--set", "confidence.render_share=0.02"]].concat(),
+    ));
+    let model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path("model.json")).unwrap()).unwrap();
+    let limit = model["calibration"]["render_limit_px"]
+        .as_f64()
+        .expect("a limit");
+    assert!(limit > 0.0 && limit < 500.0, "{limit}");
+    let track = |samples: bool, out: &str| {
+        let (test, model, sample, out) =
+            (path("test"), path("model.json"), path("sample"), path(out));
+        let mut args = vec!["track", &test, "--model", &model, "--out", &out];
+        if samples {
+            args.extend(["--samples", &sample]);
+        }
+        ok(evitrack(&args));
+        std::fs::read_to_string(&out).unwrap()
+    };
+    let (plain, checked) = (track(false, "plain.csv"), track(true, "checked.csv"));
+    assert!(!plain.contains("render_mismatch"));
+    let flagged = checked.matches("render_mismatch").count();
+    // The check abstains on frames the method answered, and leaves its own abstentions alone.
+    let abstained = |csv: &str| csv.matches("abstained").count();
+    assert_eq!(abstained(&checked), abstained(&plain) + flagged);
+    assert!(flagged > 0, "{checked}");
+    // The simulator's renderer is not a model file's to use.
+    let refused = train(
+        &[
+            &check[..],
+            &["--set", "confidence.render_from=\"simulator\""],
+        ]
+        .concat(),
+    );
+    assert_eq!(refused.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(stderr.contains("does not have"), "{stderr}");
+}

@@ -8,6 +8,7 @@ mod model;
 mod producer;
 mod programs;
 mod progress;
+mod render_check;
 mod runs;
 mod scenario_cmd;
 mod sweep;

@@ -215,6 +215,11 @@ pub struct TrackArgs {
     /// model file runs no program by itself). Repeatable.
     #[arg(long = "feature-program", value_name = "FILE.toml")]
     feature_program: Vec<PathBuf>,
+    /// The sample frames the model was trained on (a dataset folder): with a model file from a
+    /// run with `confidence.render_check`, each estimate whose predicted silhouette misses the
+    /// frame's by more than the run's limit abstains (flag `render_mismatch`), as in the run.
+    #[arg(long, value_name = "SAMPLE_DATASET")]
+    samples: Option<PathBuf>,
     /// Options given here replace the model's tracker settings.
     #[command(flatten)]
     track: TrackOptions,
@@ -343,10 +348,10 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
         })?,
         rows: extract_with_progress(&set, &dataset, &what)?,
     };
-    let validation = match &args.validation {
-        Some(path) => {
-            let data = read_dataset(path)?;
-            check_polarity(&config, &data, &path.display().to_string())?;
+    let validation_data = args.validation.as_deref().map(read_dataset).transpose()?;
+    let validation = match (&args.validation, &validation_data) {
+        (Some(path), Some(data)) => {
+            check_polarity(&config, data, &path.display().to_string())?;
             let times: Vec<f64> = data.frames.iter().map(|f| f.t).collect();
             Some((
                 DatasetFeatures {
@@ -356,12 +361,12 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
                             path.display()
                         )
                     })?,
-                    rows: extract_with_progress(&set, &data, &path.display().to_string())?,
+                    rows: extract_with_progress(&set, data, &path.display().to_string())?,
                 },
                 times,
             ))
         }
-        None => None,
+        _ => None,
     };
     let training = TrainingSet {
         feature_names: &names,
@@ -380,7 +385,14 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     let bar = spinner(&format!("fit {method}"));
     let estimator = method.fit(&settings, &training);
     bar.finish_and_clear();
-    let estimator = estimator?;
+    let mut estimator = estimator?;
+    let confidence = &settings.confidence;
+    let data = validation_data.as_ref();
+    let limit =
+        super::render_check::learn_limit(estimator.as_mut(), confidence, &config, &dataset, data)?;
+    if let Some(limit) = limit {
+        eprintln!("render check: limit {limit} px of mismatch, learned on the validation frames");
+    }
     evitrack::atomic::write(&args.out, estimator.to_json()?.as_bytes())
         .with_context(|| format!("writing {}", args.out.display()))?;
     let Some(estimator) = (estimator::underlying(estimator.as_ref()) as &dyn std::any::Any)
@@ -522,6 +534,13 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     check_polarity(&config, &dataset, &args.dataset.display().to_string())?;
     let what = args.dataset.display().to_string();
     let rows = extract_with_progress(&set, &dataset, &what)?;
+    let check = super::render_check::TrackCheck::new(
+        estimator.as_ref(),
+        &args.model,
+        args.samples.as_deref(),
+        &config,
+        &dataset,
+    )?;
     let bar = progress_bar("track");
     bar.set_length(dataset.len() as u64);
     let label = args
@@ -532,7 +551,10 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     let mut records = Vec::with_capacity(dataset.len());
     let mut motion = estimator.start_motion();
     for (i, (frame, row)) in dataset.frames.iter().zip(&rows).enumerate() {
-        let estimate = motion.next(frame.t, row)?;
+        let mut estimate = motion.next(frame.t, row)?;
+        if let Some(check) = &check {
+            check.judge(&mut estimate, &frame.image);
+        }
         let truth = frame.truth.map(|t| [t.x, t.y]);
         records.push(FrameRecord::new(
             estimator.method(),

@@ -48,8 +48,10 @@ pub(super) fn train_settings(
         // A section may be dotted (`methods.NAME` of a registered method); the evidential
         // threshold learning is spelled at the top level but belongs with `[track]`.
         let in_section = |s: &&str| path == *s || path.starts_with(&format!("{s}."));
+        // Every method is calibrated by `[confidence]` (the centre has nothing to calibrate).
         let known = match path {
             "learn_threshold" | "threshold_rule" => reads("track"),
+            _ if in_section(&"confidence") => !method.entry().sections.is_empty(),
             _ => method.entry().sections.iter().any(in_section),
         };
         if !known {
@@ -167,14 +169,6 @@ pub(super) fn train_settings(
         estimators: vec![method],
         ..base.with_values(&values)?
     };
-    if scenario.confidence.render_check {
-        // The check's limits are learned in a run, on the calibration motion's frames against
-        // the method's estimates there; a model file has no place for them.
-        eprintln!(
-            "note: `confidence.render_check` is skipped: a model file does not carry its \
-             limits; only `run` and `sweep` on simulated scenarios use it"
-        );
-    }
     Ok(scenario.check_estimators(&SettingsContext {
         feature_names: names.to_vec(),
         has_validation,

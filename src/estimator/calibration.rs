@@ -42,8 +42,8 @@ pub struct ConfidenceSettings {
     /// The run's render check (simulated scenarios only, off by default): each method but the
     /// centre also abstains where the robot's silhouette at its estimate differs from the
     /// frame's by more pixels than on `abstain_share` of its clean calibration frames
-    /// (`crate::experiment::RenderCheck`). The harness applies it; fits and model files do not
-    /// carry it.
+    /// (`crate::experiment::RenderCheck`). The harness (or `train`) learns its limit after the
+    /// fit; from the samples, model files carry it for `track --samples`.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub render_check: bool,
     /// Where the render check takes the silhouette at an estimate from.
@@ -147,6 +147,11 @@ pub struct Calibration {
     /// estimate in that cell.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cell_radii: Option<CellRadii>,
+    /// The render check's limit (pixels of mismatch) with silhouettes from the sample frames,
+    /// learned in the run that wrote the file (`confidence.render_check`); `track --samples`
+    /// applies it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render_limit_px: Option<f64>,
 }
 
 /// The poses a method estimated on its calibration frames, in order (`None`: no estimate).
@@ -279,6 +284,7 @@ impl Calibration {
             validation_frames: estimates.len(),
             validation_abstained: 0.0,
             cell_radii,
+            render_limit_px: None,
         };
         let abstained = estimates
             .iter()
@@ -406,6 +412,11 @@ impl Calibrated {
     pub fn calibration(&self) -> &Calibration {
         &self.calibration
     }
+
+    /// Keeps the render check's limit learned in a run, so its model file carries it.
+    pub fn set_render_limit(&mut self, limit_px: Option<f64>) {
+        self.calibration.render_limit_px = limit_px;
+    }
 }
 
 struct CalibratedMotion<'a> {
@@ -529,6 +540,11 @@ impl Calibration {
             cells.check()?;
         }
         positive("max_region_area", self.max_region_area)?;
+        if let Some(limit) = self.render_limit_px {
+            (limit >= 0.0).then_some(()).ok_or_else(|| {
+                format!("`calibration.render_limit_px` is {limit}: it must be a number of pixels")
+            })?;
+        }
         if let Some(limit) = self.detection_limit {
             (!limit.is_nan())
                 .then_some(())

@@ -237,13 +237,21 @@ pub fn run(
             let fitted = bench.fit(method, &settings, &training);
             (fitted, clock.elapsed().as_secs_f64())
         });
-        let estimator = fitted.map_err(|source| ExperimentError::Estimator { stage, source })?;
+        let mut estimator =
+            fitted.map_err(|source| ExperimentError::Estimator { stage, source })?;
         let clock = Instant::now();
         let calibrating = calibration.as_ref().or(validation.as_ref());
         let render_limit = match &render {
             Some(render) => render.method_limit(method, estimator.as_ref(), calibrating)?,
             None => None,
         };
+        // The model file keeps the limit, for `track --samples`.
+        if let (Some(render), Some(limit)) = (&render, &render_limit) {
+            let any = estimator.as_mut() as &mut dyn std::any::Any;
+            if let Some(calibrated) = any.downcast_mut::<crate::estimator::Calibrated>() {
+                calibrated.set_render_limit(render.limit_to_keep(limit));
+            }
+        }
         let mut method_records = Vec::new();
         let mut per_motion = Vec::with_capacity(tests.len());
         let track_stage = format!("track {method}");

@@ -16,8 +16,9 @@
 //!   is in where its centre is). It needs the exact image-formation model: half a pixel of camera
 //!   error already spoils it (docs/results.md).
 //!
-//! Either way the limits are learned in the run; a model file does not carry them, so `track`
-//! does not check.
+//! The limit learned with silhouettes from the samples is kept in each method's model file
+//! (`calibration.render_limit_px`): `track --samples` applies it to recorded frames, and `train`
+//! learns it on its validation frames. The renderer's limit stays the run's.
 //!
 //! **Undefined cases abstain.** An estimate the arms cannot reach (or not finite), no estimate,
 //! a frame without a silhouette (black, no contrast) or of another size than the camera's: the
@@ -31,7 +32,7 @@ use image::GrayImage;
 
 use super::sample_silhouettes::SampleSilhouettes;
 use super::{ExperimentError, Workbench};
-use crate::dataset::Dataset;
+use crate::dataset::{Dataset, Polarity};
 use crate::estimator::{
     conformal_quantile, Calibrated, Calibration, Centre, EstimatorError, Method, PoseEstimate,
     PoseEstimator, RenderSource,
@@ -80,11 +81,21 @@ impl Observed {
 /// compares it with a frame.
 #[derive(Debug, Clone)]
 pub struct RenderCheck {
-    camera: Camera,
-    five_bar: FiveBar,
+    width: u32,
+    height: u32,
+    /// The body's polarity in the frames.
+    polarity: Polarity,
     silhouette: SilhouetteConfig,
+    /// The simulator's camera and robot, where the check was made from them.
+    renderer: Option<Renderer>,
     /// Where set, the silhouette at an estimate is predicted from these, not rendered.
     samples: Option<SampleSilhouettes>,
+}
+
+#[derive(Debug, Clone)]
+struct Renderer {
+    camera: Camera,
+    five_bar: FiveBar,
 }
 
 /// Packs row-major pixel flags into words.
@@ -109,18 +120,43 @@ impl RenderCheck {
         let mut camera = rig.camera;
         // A pixel is in where its centre is: one sample is enough for a count of pixels.
         camera.supersampling = 1;
+        let g = &camera.geometry;
         Ok(Self {
-            camera,
-            five_bar: rig.five_bar,
+            width: g.width,
+            height: g.height,
+            polarity: g.polarity,
             silhouette: silhouette.clone(),
             samples: None,
+            renderer: Some(Renderer {
+                camera,
+                five_bar: rig.five_bar,
+            }),
         })
+    }
+
+    /// The check of recorded frames of `width × height` px with the body's `polarity`, whose
+    /// silhouette the features take with `silhouette`, predicted from `sample`'s frames (`track
+    /// --samples`); `None` when fewer than 3 of those have a pose and a silhouette.
+    pub fn from_samples(
+        (width, height): (u32, u32),
+        polarity: Polarity,
+        silhouette: &SilhouetteConfig,
+        sample: &Dataset,
+    ) -> Option<Self> {
+        Self {
+            width,
+            height,
+            polarity,
+            silhouette: silhouette.clone(),
+            renderer: None,
+            samples: None,
+        }
+        .with_samples(sample)
     }
 
     /// The check that predicts the silhouette at an estimate from `sample`'s frames (those with
     /// a pose and a silhouette) instead of rendering it; `None` when fewer than 3 have both.
     pub fn with_samples(self, sample: &Dataset) -> Option<Self> {
-        let g = &self.camera.geometry;
         let count = self.pixel_count();
         let silhouettes = (sample.frames.iter()).filter_map(|frame| {
             let truth = frame.truth?;
@@ -130,7 +166,8 @@ impl RenderCheck {
             let pixels = (0..count).map(|i| words[i / 64] >> (i % 64) & 1 == 1);
             Some(([truth.x, truth.y], pixels.collect()))
         });
-        let samples = SampleSilhouettes::new(g.width as usize, g.height as usize, silhouettes)?;
+        let (width, height) = (self.width as usize, self.height as usize);
+        let samples = SampleSilhouettes::new(width, height, silhouettes)?;
         Some(Self {
             samples: Some(samples),
             ..self
@@ -138,17 +175,15 @@ impl RenderCheck {
     }
 
     fn pixel_count(&self) -> usize {
-        let g = &self.camera.geometry;
-        g.width as usize * g.height as usize
+        self.width as usize * self.height as usize
     }
 
     /// The silhouette of `image` as the features see it.
     pub fn observe(&self, image: &GrayImage) -> Observed {
-        let g = &self.camera.geometry;
-        if image.dimensions() != (g.width, g.height) {
+        if image.dimensions() != (self.width, self.height) {
             return Observed(Seen::NoSilhouette);
         }
-        match silhouette_pixels(image, g.polarity, &self.silhouette) {
+        match silhouette_pixels(image, self.polarity, &self.silhouette) {
             Some(p) => Observed(Seen::Silhouette(pack(p.into_iter(), self.pixel_count()))),
             None => Observed(Seen::NoSilhouette),
         }
@@ -156,12 +191,12 @@ impl RenderCheck {
 
     /// The robot's shapes with its end-effector at `at`, from the kinematics alone; `None` where
     /// the arms cannot reach it.
-    fn scene(&self, at: [f64; 2]) -> Option<Scene> {
-        let theta = self.five_bar.inverse(at[0], at[1]).ok()?;
-        let g = self.five_bar.geometry();
+    fn scene(five_bar: &FiveBar, at: [f64; 2]) -> Option<Scene> {
+        let theta = five_bar.inverse(at[0], at[1]).ok()?;
+        let g = five_bar.geometry();
         let radius = g.link_radius;
-        let pivots = self.five_bar.pivots();
-        let elbows = self.five_bar.elbows(theta);
+        let pivots = five_bar.pivots();
+        let elbows = five_bar.elbows(theta);
         let mut parts = Vec::with_capacity(5);
         for (pivot, elbow) in pivots.into_iter().zip(elbows) {
             let (a, b) = (pivot, elbow);
@@ -185,8 +220,28 @@ impl RenderCheck {
         if let Some(samples) = &self.samples {
             return Some(pack(samples.predict(at)?.into_iter(), self.pixel_count()));
         }
-        let coverage = self.camera.coverage(&self.scene(at)?);
+        let renderer = self.renderer.as_ref()?;
+        let coverage = (renderer.camera).coverage(&Self::scene(&renderer.five_bar, at)?);
         Some(pack(coverage.iter().map(|&c| c >= 0.5), self.pixel_count()))
+    }
+
+    /// Makes `estimate` abstain by `calibration`'s rule, flagged `render_mismatch`, where its
+    /// mismatch with `observed` is above `limit_px`; a frame without a pose, already abstained, or
+    /// dropped is left alone.
+    pub fn judge(
+        &self,
+        estimate: &mut PoseEstimate,
+        observed: &Observed,
+        limit_px: f64,
+        calibration: &Calibration,
+    ) {
+        if estimate.pose.is_none() || estimate.flags.abstained || observed.is_dropped() {
+            return;
+        }
+        if self.mismatch(observed, estimate.pose) > limit_px {
+            calibration.abstain(estimate);
+            estimate.flags.render_mismatch = true;
+        }
     }
 
     /// Pixels where the robot rendered at `estimate` and the `observed` silhouette differ;
@@ -380,16 +435,15 @@ impl Harness {
         observed: &Observed,
         limit: &MethodLimit,
     ) {
-        let (Some(value), Some(calibration)) = (limit.limit, &limit.calibration) else {
-            return;
-        };
-        if estimate.pose.is_none() || estimate.flags.abstained || observed.is_dropped() {
-            return;
+        if let (Some(value), Some(calibration)) = (limit.limit, &limit.calibration) {
+            self.check.judge(estimate, observed, value, calibration);
         }
-        if self.check.mismatch(observed, estimate.pose) > value {
-            calibration.abstain(estimate);
-            estimate.flags.render_mismatch = true;
-        }
+    }
+
+    /// The limit a model file keeps: the one learned with silhouettes from the samples (`track
+    /// --samples` can apply it), not the renderer's.
+    pub(super) fn limit_to_keep(&self, limit: &MethodLimit) -> Option<f64> {
+        self.check.samples.as_ref().and(limit.limit)
     }
 }
 

@@ -7,12 +7,16 @@ fn check() -> (SimSettings, RenderCheck) {
     (sim, check)
 }
 
+fn centre(sim: &SimSettings) -> [f64; 2] {
+    sim.check().expect("valid").five_bar.workspace_centre()
+}
+
 #[test]
 fn the_robot_rendered_at_the_true_pose_explains_a_clean_frame_to_a_few_pixels() {
     let (sim, check) = check();
     let w = sim.geometry.workspace;
     for (k, at) in [
-        check.five_bar.workspace_centre(),
+        centre(&sim),
         [w.x_min + 2.0, w.y_max - 3.0],
         [w.x_max - 1.0, w.y_min + 1.0],
     ]
@@ -31,7 +35,7 @@ fn the_robot_rendered_at_the_true_pose_explains_a_clean_frame_to_a_few_pixels() 
 #[test]
 fn the_mismatch_grows_with_the_pose_error() {
     let (sim, check) = check();
-    let at = check.five_bar.workspace_centre();
+    let at = centre(&sim);
     let observed = check.observe(&render_pose(&sim, at[0], at[1], 3).expect("rendered"));
     let mismatches: Vec<f64> = [0.0, 0.1, 0.3, 1.0, 3.0]
         .iter()
@@ -61,7 +65,7 @@ fn the_limit_is_the_conformal_rank_of_the_calibration_mismatches() {
 fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
     let (sim, check) = check();
     let w = sim.geometry.workspace;
-    let at = check.five_bar.workspace_centre();
+    let at = centre(&sim);
     let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
     let observed = check.observe(&image);
     // No silhouette: a black frame, a dropped frame, a frame of another size.
@@ -88,7 +92,7 @@ fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
 fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
     let (sim, check) = check();
     let w = sim.geometry.workspace;
-    let at = check.five_bar.workspace_centre();
+    let at = centre(&sim);
     let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
     let harness = Harness {
         check: check.clone(),
@@ -107,6 +111,7 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
             validation_frames: 100,
             validation_abstained: 0.0,
             cell_radii: None,
+            render_limit_px: None,
         }),
     };
     let judged = |observed: &Observed, pose: [f64; 2]| {
@@ -132,7 +137,7 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
 fn silhouettes_predicted_from_the_sample_frames_explain_a_frame_and_tell_pose_errors() {
     let (sim, renderer) = check();
     // Sample frames on a 1 mm grid about the centre, as the default mesh has them.
-    let c = renderer.five_bar.workspace_centre();
+    let c = centre(&sim);
     let points = (-2..=2)
         .flat_map(|j| (-2..=2).map(move |i| [c[0] + f64::from(i), c[1] + f64::from(j)]))
         .collect();

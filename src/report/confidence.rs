@@ -226,8 +226,8 @@ impl ConfidenceSummary {
 }
 
 /// What the render check (`[confidence] render_check`) did to one method. Its limit is the
-/// run's: learned on the method's clean calibration frames, kept here, not in the model file
-/// (`track` does not check).
+/// run's, learned on the method's clean calibration frames (from the samples, the model file
+/// keeps it too, for `track --samples`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RenderCheckSummary {
     /// Where the silhouette at an estimate came from (`confidence.render_from`).

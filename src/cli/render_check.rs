@@ -1,0 +1,148 @@
+//! The render check for model files: `train` learns its limit (with `confidence.render_check`
+//! and a validation dataset), `track --samples` applies the limit a model file carries, with the
+//! silhouette at each estimate predicted from the sample frames the model was trained on.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use evitrack::dataset::Dataset;
+use evitrack::estimator::{
+    Calibrated, Calibration, ConfidenceSettings, PoseEstimate, PoseEstimator, RenderSource,
+};
+use evitrack::experiment::{render_limit, RenderCheck};
+use evitrack::features::FeatureConfig;
+use image::GrayImage;
+
+/// The check as `track` applies it.
+pub(super) struct TrackCheck {
+    check: RenderCheck,
+    limit_px: f64,
+    calibration: Calibration,
+}
+
+impl TrackCheck {
+    /// The check for `estimator` (read from `model`) on `dataset`'s frames, with the sample
+    /// frames at `samples`; `None` without `--samples` (with a note when the model carries a
+    /// limit).
+    ///
+    /// # Errors
+    /// `--samples` for a model without a limit, an unreadable sample dataset, or one with fewer
+    /// than 3 frames that have a pose and a silhouette.
+    pub(super) fn new(
+        estimator: &dyn PoseEstimator,
+        model: &Path,
+        samples: Option<&Path>,
+        config: &FeatureConfig,
+        dataset: &Dataset,
+    ) -> Result<Option<Self>> {
+        let calibration = (estimator as &dyn std::any::Any)
+            .downcast_ref::<Calibrated>()
+            .map(Calibrated::calibration);
+        let limit = calibration.and_then(|c| c.render_limit_px);
+        let (path, limit_px, calibration) = match (samples, limit, calibration) {
+            (Some(path), Some(limit), Some(calibration)) => (path, limit, calibration),
+            (None, None, _) => return Ok(None),
+            (None, Some(_), _) => {
+                eprintln!(
+                    "note: {} carries the render check's limit from its run; pass --samples with \
+                     the sample frames it was trained on to apply it",
+                    model.display()
+                );
+                return Ok(None);
+            }
+            (Some(_), _, _) => bail!(
+                "{} has no render-check limit (it was not written by a run with \
+                 `confidence.render_check` and `render_from = \"samples\"`): --samples has \
+                 nothing to apply; leave it out",
+                model.display()
+            ),
+        };
+        let sample = super::read_dataset(path)?;
+        super::check_polarity(config, &sample, &path.display().to_string())?;
+        let camera = &dataset.manifest.camera;
+        let check = RenderCheck::from_samples(
+            (camera.width, camera.height),
+            config.polarity,
+            &config.silhouette,
+            &sample,
+        )
+        .with_context(|| {
+            format!(
+                "{}: fewer than 3 frames have a pose and a silhouette of the tracked frames' size \
+                 ({} × {} px), too few to predict the robot's silhouette",
+                path.display(),
+                camera.width,
+                camera.height
+            )
+        })?;
+        Ok(Some(Self {
+            check,
+            limit_px,
+            calibration: calibration.clone(),
+        }))
+    }
+
+    /// Makes `estimate` abstain (flag `render_mismatch`) where the silhouette predicted at it
+    /// misses `image`'s by more than the limit.
+    pub(super) fn judge(&self, estimate: &mut PoseEstimate, image: &GrayImage) {
+        let observed = self.check.observe(image);
+        (self.check).judge(estimate, &observed, self.limit_px, &self.calibration);
+    }
+}
+
+/// `train`'s part: where `confidence` asks for the check from the samples and the model is
+/// calibrated on `validation`'s frames, learns the limit on them against the model's estimates
+/// there and keeps it in `estimator`'s calibration (so its model file carries it). Returns the
+/// limit, `None` when there is none to learn or too few frames for the share.
+///
+/// # Errors
+/// The simulator source (a model file cannot render), or fewer than 3 sample frames with a pose
+/// and a silhouette.
+pub(super) fn learn_limit(
+    estimator: &mut dyn PoseEstimator,
+    confidence: &ConfidenceSettings,
+    config: &FeatureConfig,
+    sample: &Dataset,
+    validation: Option<&Dataset>,
+) -> Result<Option<f64>> {
+    if !confidence.render_check {
+        return Ok(None);
+    }
+    if confidence.render_from == RenderSource::Simulator {
+        bail!(
+            "`confidence.render_from = \"simulator\"` renders the simulator's robot, which `train` \
+             does not have: use \"samples\" (the default) or leave `confidence.render_check` out"
+        );
+    }
+    let Some(validation) = validation else {
+        eprintln!(
+            "note: `confidence.render_check` learns its limit on the validation frames: give \
+             --validation, or the model carries none"
+        );
+        return Ok(None);
+    };
+    let any = estimator as &mut dyn std::any::Any;
+    let Some(calibrated) = any.downcast_mut::<Calibrated>() else {
+        return Ok(None);
+    };
+    let camera = &validation.manifest.camera;
+    let check = RenderCheck::from_samples(
+        (camera.width, camera.height),
+        config.polarity,
+        &config.silhouette,
+        sample,
+    )
+    .context(
+        "fewer than 3 sample frames have a pose and a silhouette, too few for the render check",
+    )?;
+    let poses = calibrated.calibration_poses();
+    if poses.len() != validation.frames.len() {
+        return Ok(None);
+    }
+    let mismatches: Vec<f64> = (poses.iter().zip(&validation.frames))
+        .map(|(&pose, frame)| check.mismatch(&check.observe(&frame.image), pose))
+        .collect();
+    let limit = render_limit(&mismatches, confidence.render_share);
+    calibrated.set_render_limit(limit);
+    Ok(limit)
+}
