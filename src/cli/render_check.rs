@@ -51,9 +51,9 @@ impl TrackCheck {
                 return Ok(None);
             }
             (Some(_), _, _) => bail!(
-                "{} has no render-check limit (it was not written by a run with \
-                 `confidence.render_check` and `render_from = \"samples\"`): --samples has \
-                 nothing to apply; leave it out",
+                "{} has no render-check limit to apply (it was not written by a run or `train` \
+                 with `confidence.render_check` and `render_from = \"samples\"`, or tracker \
+                 options left its calibration out): leave --samples out",
                 model.display()
             ),
         };

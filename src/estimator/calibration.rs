@@ -39,9 +39,9 @@ pub struct ConfidenceSettings {
     pub abstain_share: f64,
     /// A region larger than this share of the workspace's area makes the method abstain.
     pub max_region_share: f64,
-    /// The run's render check (simulated scenarios only, off by default): each method but the
-    /// centre also abstains where the robot's silhouette at its estimate differs from the
-    /// frame's by more pixels than on `abstain_share` of its clean calibration frames
+    /// The render check (off by default): each method but the centre also abstains where the
+    /// robot's silhouette at its estimate differs from the frame's by more pixels than on
+    /// `render_share` of its clean calibration frames
     /// (`crate::experiment::RenderCheck`). The harness (or `train`) learns its limit after the
     /// fit; from the samples, model files carry it for `track --samples`.
     #[serde(skip_serializing_if = "std::ops::Not::not")]

@@ -20,9 +20,9 @@
 //! (`calibration.render_limit_px`): `track --samples` applies it to recorded frames, and `train`
 //! learns it on its validation frames. The renderer's limit stays the run's.
 //!
-//! **Undefined cases abstain.** An estimate the arms cannot reach (or not finite), no estimate,
-//! a frame without a silhouette (black, no contrast) or of another size than the camera's: the
-//! mismatch is infinite, above any limit. A *dropped* frame is different: it has no image, which
+//! **Undefined cases abstain.** An estimate that is not finite (or, rendered, that the arms
+//! cannot reach), no estimate, a frame without a silhouette (black, no contrast) or of another
+//! size than the camera's: the mismatch is infinite, above any limit. A *dropped* frame is different: it has no image, which
 //! is missing data rather than evidence against the estimate, so the check leaves a temporal
 //! method's prediction there alone.
 

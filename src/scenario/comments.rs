@@ -176,7 +176,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("confidence.abstain_share", "Share of clean calibration frames whose detection score may abstain."),
     ("confidence.max_region_share", "Largest region (share of the workspace) before abstaining."),
     ("confidence.cells", "A region quantile per cell of an [nx, ny] grid over the workspace, by the estimate's cell (Mondrian conformal); cells with under 20 calibration frames keep the overall one."),
-    ("confidence.render_check", "Also abstain where the robot's silhouette at the estimate misses the frame's (simulated runs only)."),
+    ("confidence.render_check", "Also abstain where the robot's silhouette at the estimate misses the frame's (run, sweep;\ntrain learns it on --validation; track applies it with --samples)."),
     ("confidence.render_share", "Share of clean calibration frames the render check may abstain on (beside abstain_share)."),
     ("confidence.render_from", "The render check's silhouette at an estimate: samples (predicted from the sample frames;\nno camera model, needs dense samples such as the 1 mm mesh) or simulator (rendered; exact model)."),
     ("methods", "Settings of a registered method by its name (methods.NAME)."),
