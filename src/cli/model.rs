@@ -387,7 +387,8 @@ pub fn train(args: &TrainArgs) -> Result<ExitCode> {
     bar.finish_and_clear();
     let mut estimator = estimator?;
     let confidence = &settings.confidence;
-    let data = validation_data.as_ref();
+    let data = (validation_data.as_ref().zip(validation.as_ref()))
+        .map(|(data, (features, times))| (data, features.rows.as_slice(), times.as_slice()));
     let limit =
         super::render_check::learn_limit(estimator.as_mut(), confidence, &config, &dataset, data)?;
     if let Some(limit) = limit {
@@ -533,7 +534,6 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
     let dataset = read_dataset(&args.dataset)?;
     check_polarity(&config, &dataset, &args.dataset.display().to_string())?;
     let what = args.dataset.display().to_string();
-    let rows = extract_with_progress(&set, &dataset, &what)?;
     let check = super::render_check::TrackCheck::new(
         estimator.as_ref(),
         &args.model,
@@ -541,6 +541,7 @@ pub fn track(args: &TrackArgs) -> Result<ExitCode> {
         &config,
         &dataset,
     )?;
+    let rows = extract_with_progress(&set, &dataset, &what)?;
     let bar = progress_bar("track");
     bar.set_length(dataset.len() as u64);
     let label = args

@@ -9,7 +9,7 @@ use evitrack::dataset::Dataset;
 use evitrack::estimator::{
     Calibrated, Calibration, ConfidenceSettings, PoseEstimate, PoseEstimator, RenderSource,
 };
-use evitrack::experiment::{render_limit, RenderCheck};
+use evitrack::experiment::{estimates_on, RenderCheck};
 use evitrack::features::FeatureConfig;
 use image::GrayImage;
 
@@ -59,22 +59,8 @@ impl TrackCheck {
         };
         let sample = super::read_dataset(path)?;
         super::check_polarity(config, &sample, &path.display().to_string())?;
-        let camera = &dataset.manifest.camera;
-        let check = RenderCheck::from_samples(
-            (camera.width, camera.height),
-            config.polarity,
-            &config.silhouette,
-            &sample,
-        )
-        .with_context(|| {
-            format!(
-                "{}: fewer than 3 frames have a pose and a silhouette of the tracked frames' size \
-                 ({} × {} px), too few to predict the robot's silhouette",
-                path.display(),
-                camera.width,
-                camera.height
-            )
-        })?;
+        let what = path.display().to_string();
+        let check = check_from_samples(config, &sample, dataset, &what)?;
         Ok(Some(Self {
             check,
             limit_px,
@@ -90,6 +76,29 @@ impl TrackCheck {
     }
 }
 
+/// The check of frames of `frames`' size with silhouettes predicted from `sample` (named `what`).
+fn check_from_samples(
+    config: &FeatureConfig,
+    sample: &Dataset,
+    frames: &Dataset,
+    what: &str,
+) -> Result<RenderCheck> {
+    let camera = &frames.manifest.camera;
+    let size = (camera.width, camera.height);
+    RenderCheck::from_samples(size, config.polarity, &config.silhouette, sample).with_context(
+        || {
+            format!(
+            "{what}: fewer than 3 frames have a pose and a silhouette of {} × {} px, too few to \
+             predict the robot's silhouette",
+            size.0, size.1
+        )
+        },
+    )
+}
+
+/// A validation dataset with its feature rows and times.
+pub(super) type Validation<'a> = (&'a Dataset, &'a [Vec<Option<f64>>], &'a [f64]);
+
 /// `train`'s part: where `confidence` asks for the check from the samples and the model is
 /// calibrated on `validation`'s frames, learns the limit on them against the model's estimates
 /// there and keeps it in `estimator`'s calibration (so its model file carries it). Returns the
@@ -103,7 +112,7 @@ pub(super) fn learn_limit(
     confidence: &ConfidenceSettings,
     config: &FeatureConfig,
     sample: &Dataset,
-    validation: Option<&Dataset>,
+    validation: Option<Validation<'_>>,
 ) -> Result<Option<f64>> {
     if !confidence.render_check {
         return Ok(None);
@@ -114,35 +123,28 @@ pub(super) fn learn_limit(
              does not have: use \"samples\" (the default) or leave `confidence.render_check` out"
         );
     }
-    let Some(validation) = validation else {
+    let Some((validation, rows, times)) = validation else {
         eprintln!(
             "note: `confidence.render_check` learns its limit on the validation frames: give \
              --validation, or the model carries none"
         );
         return Ok(None);
     };
+    // The centre, not calibrated, has no estimate of its own to check.
+    if !(&*estimator as &dyn std::any::Any).is::<Calibrated>() {
+        return Ok(None);
+    }
+    let check = check_from_samples(config, sample, validation, "the sample frames")?;
+    let poses = estimates_on(estimator, rows, times)?;
+    let observed: Vec<_> = validation
+        .images()
+        .map(|image| check.observe(image))
+        .collect();
+    let limit = check.limit(&poses, &observed, confidence.render_share);
     let any = estimator as &mut dyn std::any::Any;
     let Some(calibrated) = any.downcast_mut::<Calibrated>() else {
         return Ok(None);
     };
-    let camera = &validation.manifest.camera;
-    let check = RenderCheck::from_samples(
-        (camera.width, camera.height),
-        config.polarity,
-        &config.silhouette,
-        sample,
-    )
-    .context(
-        "fewer than 3 sample frames have a pose and a silhouette, too few for the render check",
-    )?;
-    let poses = calibrated.calibration_poses();
-    if poses.len() != validation.frames.len() {
-        return Ok(None);
-    }
-    let mismatches: Vec<f64> = (poses.iter().zip(&validation.frames))
-        .map(|(&pose, frame)| check.mismatch(&check.observe(&frame.image), pose))
-        .collect();
-    let limit = render_limit(&mismatches, confidence.render_share);
     calibrated.set_render_limit(limit);
     Ok(limit)
 }

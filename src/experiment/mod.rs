@@ -16,7 +16,7 @@ mod sample_silhouettes;
 mod workbench;
 
 pub use limit::{frame_bounds, noise_model};
-pub use render_check::{render_limit, Observed, RenderCheck};
+pub use render_check::{estimates_on, render_limit, Observed, RenderCheck};
 pub use sample::{sample_trajectory, SampleTrajectory};
 pub use sample_silhouettes::SampleSilhouettes;
 pub use workbench::{Step, Workbench};

@@ -81,21 +81,39 @@ impl Observed {
 /// compares it with a frame.
 #[derive(Debug, Clone)]
 pub struct RenderCheck {
-    width: u32,
-    height: u32,
-    /// The body's polarity in the frames.
-    polarity: Polarity,
-    silhouette: SilhouetteConfig,
-    /// The simulator's camera and robot, where the check was made from them.
-    renderer: Option<Renderer>,
-    /// Where set, the silhouette at an estimate is predicted from these, not rendered.
-    samples: Option<SampleSilhouettes>,
+    frames: FrameView,
+    source: Source,
 }
 
+/// How the features see a frame: its size, the body's polarity, the silhouette's settings.
 #[derive(Debug, Clone)]
-struct Renderer {
-    camera: Camera,
-    five_bar: FiveBar,
+struct FrameView {
+    width: u32,
+    height: u32,
+    polarity: Polarity,
+    silhouette: SilhouetteConfig,
+}
+
+impl FrameView {
+    fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// The silhouette of `image` (row-major pixel flags); `None` for another size or no body.
+    fn silhouette(&self, image: &GrayImage) -> Option<Vec<bool>> {
+        (image.dimensions() == (self.width, self.height))
+            .then(|| silhouette_pixels(image, self.polarity, &self.silhouette))
+            .flatten()
+    }
+}
+
+/// Where the silhouette at an estimate comes from.
+#[derive(Debug, Clone)]
+enum Source {
+    /// Rendered with the simulator's camera and robot.
+    Renderer { camera: Camera, five_bar: FiveBar },
+    /// Predicted from the sample frames.
+    Samples(SampleSilhouettes),
 }
 
 /// Packs row-major pixel flags into words.
@@ -121,16 +139,16 @@ impl RenderCheck {
         // A pixel is in where its centre is: one sample is enough for a count of pixels.
         camera.supersampling = 1;
         let g = &camera.geometry;
-        Ok(Self {
+        let frames = FrameView {
             width: g.width,
             height: g.height,
             polarity: g.polarity,
             silhouette: silhouette.clone(),
-            samples: None,
-            renderer: Some(Renderer {
-                camera,
-                five_bar: rig.five_bar,
-            }),
+        };
+        let five_bar = rig.five_bar;
+        Ok(Self {
+            frames,
+            source: Source::Renderer { camera, five_bar },
         })
     }
 
@@ -143,48 +161,49 @@ impl RenderCheck {
         silhouette: &SilhouetteConfig,
         sample: &Dataset,
     ) -> Option<Self> {
-        Self {
+        let frames = FrameView {
             width,
             height,
             polarity,
             silhouette: silhouette.clone(),
-            renderer: None,
-            samples: None,
-        }
-        .with_samples(sample)
+        };
+        Self::predicting(frames, sample)
     }
 
     /// The check that predicts the silhouette at an estimate from `sample`'s frames (those with
     /// a pose and a silhouette) instead of rendering it; `None` when fewer than 3 have both.
     pub fn with_samples(self, sample: &Dataset) -> Option<Self> {
-        let count = self.pixel_count();
+        Self::predicting(self.frames, sample)
+    }
+
+    fn predicting(frames: FrameView, sample: &Dataset) -> Option<Self> {
         let silhouettes = (sample.frames.iter()).filter_map(|frame| {
             let truth = frame.truth?;
-            let Seen::Silhouette(words) = self.observe(&frame.image).0 else {
-                return None;
-            };
-            let pixels = (0..count).map(|i| words[i / 64] >> (i % 64) & 1 == 1);
-            Some(([truth.x, truth.y], pixels.collect()))
+            Some(([truth.x, truth.y], frames.silhouette(&frame.image)?))
         });
-        let (width, height) = (self.width as usize, self.height as usize);
+        let (width, height) = (frames.width as usize, frames.height as usize);
         let samples = SampleSilhouettes::new(width, height, silhouettes)?;
         Some(Self {
-            samples: Some(samples),
-            ..self
+            frames,
+            source: Source::Samples(samples),
         })
     }
 
-    fn pixel_count(&self) -> usize {
-        self.width as usize * self.height as usize
+    /// Where the silhouette at an estimate comes from.
+    pub fn source(&self) -> RenderSource {
+        match self.source {
+            Source::Renderer { .. } => RenderSource::Simulator,
+            Source::Samples(_) => RenderSource::Samples,
+        }
     }
 
     /// The silhouette of `image` as the features see it.
     pub fn observe(&self, image: &GrayImage) -> Observed {
-        if image.dimensions() != (self.width, self.height) {
-            return Observed(Seen::NoSilhouette);
-        }
-        match silhouette_pixels(image, self.polarity, &self.silhouette) {
-            Some(p) => Observed(Seen::Silhouette(pack(p.into_iter(), self.pixel_count()))),
+        match self.frames.silhouette(image) {
+            Some(p) => Observed(Seen::Silhouette(pack(
+                p.into_iter(),
+                self.frames.pixel_count(),
+            ))),
             None => Observed(Seen::NoSilhouette),
         }
     }
@@ -217,12 +236,28 @@ impl RenderCheck {
     /// The robot's silhouette at `at` (rendered, or predicted from the samples), packed as
     /// [`Observed`]'s.
     pub fn rendered(&self, at: [f64; 2]) -> Option<Vec<u64>> {
-        if let Some(samples) = &self.samples {
-            return Some(pack(samples.predict(at)?.into_iter(), self.pixel_count()));
+        let count = self.frames.pixel_count();
+        match &self.source {
+            Source::Samples(samples) => Some(pack(samples.predict(at)?.into_iter(), count)),
+            Source::Renderer { camera, five_bar } => {
+                let coverage = camera.coverage(&Self::scene(five_bar, at)?);
+                Some(pack(coverage.iter().map(|&c| c >= 0.5), count))
+            }
         }
-        let renderer = self.renderer.as_ref()?;
-        let coverage = (renderer.camera).coverage(&Self::scene(&renderer.five_bar, at)?);
-        Some(pack(coverage.iter().map(|&c| c >= 0.5), self.pixel_count()))
+    }
+
+    /// The limit learned on the calibration frames `observed` against a method's `poses` there:
+    /// the ⌈(n+1)(1 − `share`)⌉-th smallest mismatch ([`render_limit`]).
+    pub fn limit(
+        &self,
+        poses: &[Option<[f64; 2]>],
+        observed: &[Observed],
+        share: f64,
+    ) -> Option<f64> {
+        let mismatches: Vec<f64> = (poses.iter().zip(observed))
+            .map(|(&pose, observed)| self.mismatch(observed, pose))
+            .collect();
+        render_limit(&mismatches, share)
     }
 
     /// Makes `estimate` abstain by `calibration`'s rule, flagged `render_mismatch`, where its
@@ -267,6 +302,28 @@ impl RenderCheck {
 /// or infinite, and then the check makes no frame abstain.
 pub fn render_limit(calibration: &[f64], share: f64) -> Option<f64> {
     conformal_quantile(calibration, 1.0 - share)
+}
+
+/// `estimator`'s poses on the calibration frames `rows` (at `times`): those its calibration saw,
+/// else (a method fitted elsewhere) tracked again.
+///
+/// # Errors
+/// The estimator's, while tracking.
+pub fn estimates_on(
+    estimator: &dyn PoseEstimator,
+    rows: &[Vec<Option<f64>>],
+    times: &[f64],
+) -> Result<Vec<Option<[f64; 2]>>, EstimatorError> {
+    let calibrated = (estimator as &dyn std::any::Any).downcast_ref::<Calibrated>();
+    match calibrated.map(Calibrated::calibration_poses) {
+        Some(poses) if poses.len() == rows.len() => Ok(poses.to_vec()),
+        _ => {
+            let mut motion = estimator.start_motion();
+            (rows.iter().zip(times))
+                .map(|(row, &time)| Ok(motion.next(time, row)?.pose))
+                .collect()
+        }
+    }
 }
 
 /// The check as a run uses it: the calibration motion's silhouettes, the limits learned on them,
@@ -336,10 +393,7 @@ impl Harness {
 
     /// Where the silhouette at an estimate comes from.
     pub(super) fn source(&self) -> RenderSource {
-        match self.check.samples {
-            Some(_) => RenderSource::Samples,
-            None => RenderSource::Simulator,
-        }
+        self.check.source()
     }
 
     /// The calibration motion's frames the limits are learned on.
@@ -408,21 +462,9 @@ impl Harness {
     ) -> Result<MethodLimit, EstimatorError> {
         let calibrated = (estimator as &dyn std::any::Any).downcast_ref::<Calibrated>();
         let calibration = calibrated.map(|c| c.calibration().clone());
-        // The poses its calibration saw, else (a method fitted elsewhere) tracked again.
-        let poses = match calibrated.map(Calibrated::calibration_poses) {
-            Some(poses) if poses.len() == self.calibration.len() => poses.to_vec(),
-            _ => {
-                let mut motion = estimator.start_motion();
-                (rows.iter().zip(times))
-                    .map(|(row, &time)| Ok(motion.next(time, row)?.pose))
-                    .collect::<Result<Vec<_>, EstimatorError>>()?
-            }
-        };
-        let mismatches: Vec<f64> = (poses.iter().zip(&self.calibration))
-            .map(|(&pose, observed)| self.check.mismatch(observed, pose))
-            .collect();
+        let poses = estimates_on(estimator, rows, times)?;
         Ok(MethodLimit {
-            limit: render_limit(&mismatches, self.share),
+            limit: self.check.limit(&poses, &self.calibration, self.share),
             calibration,
         })
     }
@@ -443,7 +485,9 @@ impl Harness {
     /// The limit a model file keeps: the one learned with silhouettes from the samples (`track
     /// --samples` can apply it), not the renderer's.
     pub(super) fn limit_to_keep(&self, limit: &MethodLimit) -> Option<f64> {
-        self.check.samples.as_ref().and(limit.limit)
+        (self.source() == RenderSource::Samples)
+            .then_some(limit.limit)
+            .flatten()
     }
 }
 
