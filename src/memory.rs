@@ -276,7 +276,11 @@ pub fn of_run(scenario: &CheckedScenario) -> Result<Estimate, MemoryError> {
     });
     // The render check from the samples keeps a distance field per sample, 2 bytes a pixel.
     let confidence = &s.confidence;
-    if confidence.render_check && confidence.render_from == RenderSource::Samples {
+    let calibration = s.calibration.as_ref().or(s.validation.as_ref());
+    let calibration_frames = calibration.map(frames).transpose()?;
+    if confidence.render_check_on(calibration_frames)
+        && confidence.render_from == RenderSource::Samples
+    {
         parts.push(Part {
             what: format!(
                 "the render check's distance fields, {samples} samples of {} × {} px",
@@ -544,10 +548,29 @@ mod tests {
             name: "fields".into(),
             ..Default::default()
         };
-        assert_eq!(fields(&scenario), None, "off by default");
-        scenario.confidence.render_check = true;
+        // The default validation motion's 100 frames are too few for a limit at share 0.005,
+        // so the check is off unless asked for.
+        assert_eq!(
+            fields(&scenario),
+            None,
+            "too few frames to learn its limit on"
+        );
+        scenario.confidence.render_check = Some(true);
         // The default 1 mm mesh: 400 samples of 170 × 120 px, 2 bytes each.
-        assert_eq!(fields(&scenario), Some(400 * 170 * 120 * 2));
+        let all = Some(400 * 170 * 120 * 2);
+        assert_eq!(fields(&scenario), all, "asked for");
+        scenario.confidence.render_check = None;
+        scenario.validation = Some(crate::sim::Motion::RandomPath {
+            seed: None,
+            speed: 8.0,
+            duration: 20.0,
+            fps: 10.0,
+            components: 4,
+        });
+        assert_eq!(fields(&scenario), all, "on by default on 200 frames");
+        scenario.confidence.render_check = Some(false);
+        assert_eq!(fields(&scenario), None, "turned off");
+        scenario.confidence.render_check = Some(true);
         scenario.confidence.render_from = RenderSource::Simulator;
         assert_eq!(fields(&scenario), None, "the renderer keeps none");
     }

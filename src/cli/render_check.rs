@@ -99,14 +99,15 @@ fn check_from_samples(
 /// A validation dataset with its feature rows and times.
 pub(super) type Validation<'a> = (&'a Dataset, &'a [Vec<Option<f64>>], &'a [f64]);
 
-/// `train`'s part: where `confidence` asks for the check from the samples and the model is
-/// calibrated on `validation`'s frames, learns the limit on them against the model's estimates
-/// there and keeps it in `estimator`'s calibration (so its model file carries it). Returns the
-/// limit, `None` when there is none to learn or too few frames for the share.
+/// `train`'s part: where `confidence` asks for the check (or leaves it to its default) and the
+/// model is calibrated on `validation`'s frames, learns the limit on them against the model's
+/// estimates there and keeps it in `estimator`'s calibration (so its model file carries it).
+/// Returns the limit, `None` when there is none to learn or too few frames for the share.
 ///
 /// # Errors
-/// The simulator source (a model file cannot render), or fewer than 3 sample frames with a pose
-/// and a silhouette.
+/// The simulator source (a model file cannot render); asked for (`confidence.render_check =
+/// true`), fewer than 3 sample frames with a pose and a silhouette (left to its default, the
+/// check is left out then, with a note).
 pub(super) fn learn_limit(
     estimator: &mut dyn PoseEstimator,
     confidence: &ConfidenceSettings,
@@ -114,13 +115,14 @@ pub(super) fn learn_limit(
     sample: &Dataset,
     validation: Option<Validation<'_>>,
 ) -> Result<Option<f64>> {
-    if !confidence.render_check {
+    let required = confidence.render_check_required();
+    if !confidence.render_check_on(validation.map(|(data, _, _)| data.frames.len())) {
         return Ok(None);
     }
     if confidence.render_from == RenderSource::Simulator {
         bail!(
             "`confidence.render_from = \"simulator\"` renders the simulator's robot, which `train` \
-             does not have: use \"samples\" (the default) or leave `confidence.render_check` out"
+             does not have: use \"samples\" (the default) or set `confidence.render_check=false`"
         );
     }
     let Some((validation, rows, times)) = validation else {
@@ -134,7 +136,14 @@ pub(super) fn learn_limit(
     if !(&*estimator as &dyn std::any::Any).is::<Calibrated>() {
         return Ok(None);
     }
-    let check = check_from_samples(config, sample, validation, "the sample frames")?;
+    let check = match check_from_samples(config, sample, validation, "the sample frames") {
+        Ok(check) => check,
+        Err(e) if !required => {
+            eprintln!("note: no render check: {e:#}");
+            return Ok(None);
+        }
+        Err(e) => return Err(e),
+    };
     let poses = estimates_on(estimator, rows, times)?;
     let observed: Vec<_> = validation
         .images()

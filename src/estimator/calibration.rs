@@ -35,23 +35,28 @@ pub use cells::CellRadii;
 pub struct ConfidenceSettings {
     /// Share of clean frames the regions should hold (split-conformal, on the validation motion).
     pub coverage: f64,
-    /// Share of clean validation frames whose detection score may make the method abstain.
+    /// Share of clean calibration frames the method may abstain on, by its detection score and
+    /// the render check together: where the check runs it takes `render_share` of it and the
+    /// detection score the rest ([`ConfidenceSettings::detection_share`]).
     pub abstain_share: f64,
     /// A region larger than this share of the workspace's area makes the method abstain.
     pub max_region_share: f64,
-    /// The render check (off by default): each method but the centre also abstains where the
-    /// robot's silhouette at its estimate differs from the frame's by more pixels than on
-    /// `render_share` of its clean calibration frames
-    /// (`crate::experiment::RenderCheck`). The harness (or `train`) learns its limit after the
-    /// fit; from the samples, model files carry it for `track --samples`.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
-    pub render_check: bool,
+    /// The render check: each method but the centre also abstains where the robot's silhouette
+    /// at its estimate differs from the frame's by more pixels than on `render_share` of its
+    /// clean calibration frames (`crate::experiment::RenderCheck`). The harness (or `train`)
+    /// learns its limit after the fit; from the samples, model files carry it for
+    /// `track --samples`. `None` (the default): on wherever the calibration motion has frames
+    /// enough for its limit ([`ConfidenceSettings::render_check_on`]; the run leaves it out, its
+    /// share unused, where fewer than 3 sample frames show a silhouette); `Some(true)` asks for
+    /// it (an error where it cannot be learned), `Some(false)` turns it off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub render_check: Option<bool>,
     /// Where the render check takes the silhouette at an estimate from.
     #[serde(default, skip_serializing_if = "RenderSource::is_samples")]
     pub render_from: RenderSource,
-    /// Share of clean calibration frames the render check may make abstain, beside the
-    /// detection score's `abstain_share`: half of its default, so the two together abstain on
-    /// about 1.5 % of frames like the calibration motion's.
+    /// Share of clean calibration frames the render check may make abstain, taken from
+    /// `abstain_share` (half of its default), so that with the check the two together still
+    /// abstain on about 1 % of frames like the calibration motion's.
     #[serde(skip_serializing_if = "is_default_render_share")]
     pub render_share: f64,
     /// A region quantile per cell of an nx × ny grid over the workspace, by where the estimate
@@ -90,7 +95,7 @@ impl Default for ConfidenceSettings {
             coverage: 0.9,
             abstain_share: 0.01,
             max_region_share: 0.5,
-            render_check: false,
+            render_check: None,
             render_from: RenderSource::Samples,
             render_share: DEFAULT_RENDER_SHARE,
             cells: None,
@@ -99,6 +104,29 @@ impl Default for ConfidenceSettings {
 }
 
 impl ConfidenceSettings {
+    /// Whether the render check runs with `calibration_frames` frames to learn its limit on
+    /// (`None`: no calibration motion): as asked, else wherever those frames are enough for a
+    /// limit at `render_share` (199 at the default 0.005).
+    pub fn render_check_on(&self, calibration_frames: Option<usize>) -> bool {
+        let learnable = |n: usize| conformal_rank(n, 1.0 - self.render_share) <= n;
+        self.render_check
+            .unwrap_or_else(|| calibration_frames.is_some_and(learnable))
+    }
+
+    /// The share of `calibration_frames` clean calibration frames the detection score may make
+    /// abstain: `abstain_share`, less `render_share` where the render check runs (at least 0).
+    pub fn detection_share(&self, calibration_frames: usize) -> f64 {
+        match self.render_check_on(Some(calibration_frames)) {
+            true => (self.abstain_share - self.render_share).max(0.0),
+            false => self.abstain_share,
+        }
+    }
+
+    /// Whether the render check was asked for in so many words (then it must run).
+    pub fn render_check_required(&self) -> bool {
+        self.render_check == Some(true)
+    }
+
     /// Checks the ranges: a sentence naming the field otherwise.
     ///
     /// # Errors
@@ -157,6 +185,12 @@ pub struct Calibration {
 /// The poses a method estimated on its calibration frames, in order (`None`: no estimate).
 pub type CalibrationPoses = Vec<Option<[f64; 2]>>;
 
+/// ⌈(n+1)·share⌉, the rank of the split-conformal quantile at `share` of n values.
+fn conformal_rank(n: usize, share: f64) -> usize {
+    // Less a hair, so that 10 × 0.9 (9.000000000000002 in floating point) is rank 9.
+    ((n + 1) as f64 * share - 1e-9).ceil() as usize
+}
+
 /// The ⌈(n+1)·share⌉-th smallest of `values` (non-finite ones rank last); `None` past the end.
 pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
     let mut sorted: Vec<f64> = values
@@ -164,8 +198,7 @@ pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
         .map(|&v| if v.is_nan() { f64::INFINITY } else { v })
         .collect();
     sorted.sort_by(f64::total_cmp);
-    // Less a hair, so that 10 × 0.9 (9.000000000000002 in floating point) is rank 9.
-    let rank = ((sorted.len() + 1) as f64 * share - 1e-9).ceil() as usize;
+    let rank = conformal_rank(sorted.len(), share);
     (rank >= 1)
         .then(|| sorted.get(rank - 1).copied())
         .flatten()
@@ -268,7 +301,10 @@ impl Calibration {
             .collect();
         let detections: Vec<f64> = estimates.iter().filter_map(|e| e.detection_score).collect();
         let detection_limit = (!detections.is_empty())
-            .then(|| conformal_quantile(&detections, 1.0 - settings.abstain_share))
+            .then(|| {
+                let share = settings.detection_share(estimates.len());
+                conformal_quantile(&detections, 1.0 - share)
+            })
             .flatten();
         let cell_radii = settings.cells.map(|cells| {
             let poses: Vec<Option<[f64; 2]>> = estimates.iter().map(|e| e.pose).collect();

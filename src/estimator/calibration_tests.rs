@@ -51,6 +51,21 @@ fn the_conformal_quantile_is_the_rank_of_n_plus_one() {
 }
 
 #[test]
+fn the_render_check_runs_by_default_where_its_limit_can_be_learned() {
+    let mut settings = ConfidenceSettings::default();
+    // At share 0.005 the limit is the ⌈0.995 (n + 1)⌉-th of n mismatches: n ≥ 199.
+    assert!(!settings.render_check_on(None));
+    assert!(!settings.render_check_on(Some(198)));
+    assert!(settings.render_check_on(Some(199)));
+    settings.render_share = 0.05;
+    assert!(settings.render_check_on(Some(19)));
+    settings.render_check = Some(false);
+    assert!(!settings.render_check_on(Some(400)));
+    settings.render_check = Some(true);
+    assert!(settings.render_check_on(None) && settings.render_check_required());
+}
+
+#[test]
 fn calibrated_regions_hold_the_nominal_share_of_exchangeable_frames() {
     let settings = ConfidenceSettings::default();
     let (validation, truth) = draws(400, 1);

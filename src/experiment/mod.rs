@@ -142,14 +142,7 @@ pub fn run(
     };
 
     // The render check's calibration frames, and then each test frame's silhouette.
-    let render = match s.confidence.render_check {
-        true => Some(render_check::Harness::new(
-            scenario,
-            bench,
-            &sample.dataset,
-        )?),
-        false => None,
-    };
+    let render = render_check::Harness::new(scenario, bench, &sample.dataset)?;
     let mut observed = Vec::new();
 
     // The test frames: simulated and their features extracted once, for every method; then

@@ -347,13 +347,29 @@ pub(super) struct MethodLimit {
 
 impl Harness {
     /// The check of `scenario`'s frames, its calibration motion's silhouettes taken; `sample`
-    /// is the sample trajectory the run trains on.
+    /// is the sample trajectory the run trains on. `None` when the check is off: turned off, or
+    /// left to its default where it cannot be learned (no calibration motion, or from the
+    /// samples fewer than 3 sample frames with a silhouette).
+    ///
+    /// # Errors
+    /// The camera or robot cannot be built, the calibration motion cannot be simulated, or the
+    /// check was asked for (`render_check = true`) and the samples cannot predict a silhouette.
     pub(super) fn new(
         scenario: &CheckedScenario,
         bench: &Workbench,
         sample: &Dataset,
-    ) -> Result<Self, ExperimentError> {
+    ) -> Result<Option<Self>, ExperimentError> {
         let s = scenario.get();
+        let (motion, part) = match (&s.calibration, &s.validation) {
+            (Some(motion), _) => (motion, ScenarioPart::Calibration),
+            (None, Some(motion)) => (motion, ScenarioPart::Validation),
+            // Asked for without one, the scenario's check refuses it.
+            (None, None) => return Ok(None),
+        };
+        let data = bench.dataset(&s.sim, motion, seed::for_part(s.seed, part), &mut |_, _| {})?;
+        if !s.confidence.render_check_on(Some(data.frames.len())) {
+            return Ok(None);
+        }
         let mut check = RenderCheck::new(&s.sim, &s.features.silhouette).map_err(|e| {
             ExperimentError::Simulate {
                 what: "the render check's camera and robot".into(),
@@ -362,33 +378,23 @@ impl Harness {
         })?;
         if s.confidence.render_from == RenderSource::Samples {
             let samples = sample.frames.len();
-            check = check.with_samples(sample).ok_or_else(|| {
-                ExperimentError::RenderCheck(format!(
-                    "fewer than 3 of the {samples} sample frames show a silhouette, too few to \
-                     predict one at an estimate; set `confidence.render_from = \"simulator\"` \
-                     or turn `confidence.render_check` off"
-                ))
-            })?;
+            check = match check.with_samples(sample) {
+                Some(check) => check,
+                None if !s.confidence.render_check_required() => return Ok(None),
+                None => {
+                    return Err(ExperimentError::RenderCheck(format!(
+                        "fewer than 3 of the {samples} sample frames show a silhouette, too few \
+                         to predict one at an estimate; set `confidence.render_from = \
+                         \"simulator\"` or turn `confidence.render_check` off"
+                    )))
+                }
+            };
         }
-        let master = s.seed;
-        let (motion, part) = match (&s.calibration, &s.validation) {
-            (Some(motion), _) => (motion, ScenarioPart::Calibration),
-            (None, Some(motion)) => (motion, ScenarioPart::Validation),
-            // The scenario's check refuses it; no limit then, so no frame abstains.
-            (None, None) => {
-                return Ok(Self {
-                    check,
-                    calibration: Vec::new(),
-                    share: s.confidence.render_share,
-                })
-            }
-        };
-        let data = bench.dataset(&s.sim, motion, seed::for_part(master, part), &mut |_, _| {})?;
-        Ok(Self {
+        Ok(Some(Self {
             calibration: data.images().map(|image| check.observe(image)).collect(),
             check,
             share: s.confidence.render_share,
-        })
+        }))
     }
 
     /// Where the silhouette at an estimate comes from.

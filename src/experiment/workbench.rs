@@ -235,16 +235,21 @@ fn extractor_parts(config: &FeatureConfig, set: &FeatureSet) -> Vec<(FeatureConf
 /// provenance). `None` for methods that do not share fits.
 fn fit_key(method: Method, settings: &EstimatorSettings, data: &TrainingSet) -> Option<Vec<u8>> {
     let method_settings = (method.entry().shared_fit?)(settings)?;
+    let confidence = &settings.confidence;
+    let calibration = data.calibration.as_ref().or(data.validation.as_ref());
+    let calibration_frames = calibration.map_or(0, |c| c.rows.len());
     let header = serde_json::json!({
         "method": method,
         "settings": method_settings,
         // The shared fit is calibrated (on the calibration or validation motion) at these levels;
-        // the render check is the harness's, after the fit.
+        // the render check is the harness's, after the fit, and its settings reach the fit only
+        // through the detection score's share.
         "confidence": ConfidenceSettings {
-            render_check: false,
+            abstain_share: confidence.detection_share(calibration_frames),
+            render_check: None,
             render_from: RenderSource::Samples,
             render_share: ConfidenceSettings::default().render_share,
-            ..settings.confidence.clone()
+            ..confidence.clone()
         },
         "features": data.feature_names,
         "config": data.feature_config,

@@ -335,7 +335,10 @@ impl Scenario {
         self.confidence
             .check()
             .map_err(|e| invalid(format!("[confidence]: {e}")))?;
-        if self.confidence.render_check && self.validation.is_none() && self.calibration.is_none() {
+        if self.confidence.render_check_required()
+            && self.validation.is_none()
+            && self.calibration.is_none()
+        {
             return Err(invalid(
                 "`confidence.render_check` learns each method's limit on the calibration motion: \
                  add a [calibration] or [validation] motion, or leave it out"
