@@ -330,11 +330,19 @@ pub fn estimates_on(
 /// the test frames judged against them.
 #[derive(Debug)]
 pub(super) struct Harness {
+    learned: Arc<Learned>,
+    /// Share of clean calibration frames the check may make abstain.
+    share: f64,
+}
+
+/// What the check learns before any method: the silhouette source (from the samples, a
+/// distance field per sample frame) and the calibration motion's silhouettes. A pure function of
+/// the settings and seeds in [`Harness::new`]'s key, so the variants of a sweep share it.
+#[derive(Debug)]
+pub(super) struct Learned {
     check: RenderCheck,
     /// The calibration motion's frames (`[calibration]`, else the validation motion).
     calibration: Vec<Observed>,
-    /// Share of clean calibration frames the check may make abstain.
-    share: f64,
 }
 
 /// A method's limit with the calibration its abstentions follow.
@@ -370,41 +378,60 @@ impl Harness {
         if !s.confidence.render_check_on(Some(data.frames.len())) {
             return Ok(None);
         }
-        let mut check = RenderCheck::new(&s.sim, &s.features.silhouette).map_err(|e| {
+        let check = RenderCheck::new(&s.sim, &s.features.silhouette).map_err(|e| {
             ExperimentError::Simulate {
                 what: "the render check's camera and robot".into(),
                 source: Arc::new(e),
             }
         })?;
-        if s.confidence.render_from == RenderSource::Samples {
-            let samples = sample.frames.len();
-            check = match check.with_samples(sample) {
-                Some(check) => check,
-                None if !s.confidence.render_check_required() => return Ok(None),
-                None => {
-                    return Err(ExperimentError::RenderCheck(format!(
-                        "fewer than 3 of the {samples} sample frames show a silhouette, too few \
-                         to predict one at an estimate; set `confidence.render_from = \
-                         \"simulator\"` or turn `confidence.render_check` off"
-                    )))
-                }
+        let from_samples = s.confidence.render_from == RenderSource::Samples;
+        // The sample frames depend on the features only through the adaptive trajectory.
+        let key = serde_json::json!({
+            "sim": s.sim,
+            "silhouette": s.features.silhouette,
+            "from_samples": from_samples,
+            "sample": from_samples.then_some(&s.sample),
+            "sample_seed": seed::for_part(s.seed, ScenarioPart::Sample),
+            "features": (from_samples && s.sample.adaptive.is_some()).then_some(&s.features),
+            "calibration": motion,
+            "calibration_seed": seed::for_part(s.seed, part),
+        })
+        .to_string();
+        let learned = bench.render_check(key, || {
+            let check = match from_samples {
+                true => check.with_samples(sample)?,
+                false => check,
             };
-        }
+            Some(Learned {
+                calibration: data.images().map(|image| check.observe(image)).collect(),
+                check,
+            })
+        });
+        let Some(learned) = learned else {
+            if !s.confidence.render_check_required() {
+                return Ok(None);
+            }
+            let samples = sample.frames.len();
+            return Err(ExperimentError::RenderCheck(format!(
+                "fewer than 3 of the {samples} sample frames show a silhouette, too few to \
+                 predict one at an estimate; set `confidence.render_from = \"simulator\"` or \
+                 turn `confidence.render_check` off"
+            )));
+        };
         Ok(Some(Self {
-            calibration: data.images().map(|image| check.observe(image)).collect(),
-            check,
+            learned,
             share: s.confidence.render_share,
         }))
     }
 
     /// Where the silhouette at an estimate comes from.
     pub(super) fn source(&self) -> RenderSource {
-        self.check.source()
+        self.learned.check.source()
     }
 
     /// The calibration motion's frames the limits are learned on.
     pub(super) fn calibration_frames(&self) -> usize {
-        self.calibration.len()
+        self.learned.calibration.len()
     }
 
     /// The silhouettes of painted frames `at`.
@@ -413,7 +440,7 @@ impl Harness {
         at: &[usize],
         images: &[GrayImage],
     ) -> Vec<(usize, Observed)> {
-        let observed = images.iter().map(|image| self.check.observe(image));
+        let observed = images.iter().map(|image| self.learned.check.observe(image));
         at.iter().copied().zip(observed).collect()
     }
 
@@ -433,7 +460,7 @@ impl Harness {
                 }
                 match painted.binary_search_by_key(&i, |p| p.0) {
                     Ok(k) => painted[k].1.clone(),
-                    Err(_) => self.check.observe(image),
+                    Err(_) => self.learned.check.observe(image),
                 }
             })
             .collect()
@@ -470,7 +497,10 @@ impl Harness {
         let calibration = calibrated.map(|c| c.calibration().clone());
         let poses = estimates_on(estimator, rows, times)?;
         Ok(MethodLimit {
-            limit: self.check.limit(&poses, &self.calibration, self.share),
+            limit: self
+                .learned
+                .check
+                .limit(&poses, &self.learned.calibration, self.share),
             calibration,
         })
     }
@@ -484,7 +514,9 @@ impl Harness {
         limit: &MethodLimit,
     ) {
         if let (Some(value), Some(calibration)) = (limit.limit, &limit.calibration) {
-            self.check.judge(estimate, observed, value, calibration);
+            self.learned
+                .check
+                .judge(estimate, observed, value, calibration);
         }
     }
 

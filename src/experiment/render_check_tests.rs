@@ -95,8 +95,10 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
     let at = centre(&sim);
     let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
     let harness = Harness {
-        check: check.clone(),
-        calibration: Vec::new(),
+        learned: Arc::new(Learned {
+            check: check.clone(),
+            calibration: Vec::new(),
+        }),
         share: 0.01,
     };
     let limit = MethodLimit {

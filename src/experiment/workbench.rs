@@ -6,9 +6,11 @@
 //! first.
 
 use std::collections::HashMap;
+use std::convert::Infallible;
 use std::hash::Hash;
 use std::sync::{Arc, Mutex, OnceLock};
 
+use super::render_check::Learned;
 use super::ExperimentError;
 use crate::dataset::Dataset;
 use crate::estimator::{
@@ -38,6 +40,9 @@ pub struct Workbench {
     /// Fits of the methods that share them (`gp`, `continuous`), keyed by [`fit_key`]; `None`
     /// when the fit failed (each later caller then fits again for its own error).
     fits: Mutex<HashMap<Vec<u8>, SharedFit>>,
+    /// The render check's learned silhouettes, keyed by what they depend on; `None` where the
+    /// sample frames show too few silhouettes.
+    render_checks: Mutex<HashMap<String, Shared<Option<Arc<Learned>>, Infallible>>>,
     /// Threads one simulation or extraction may use (0 and 1: the calling thread only).
     threads: usize,
 }
@@ -148,6 +153,20 @@ impl Workbench {
             what: motion.name().to_string(),
             source,
         })
+    }
+
+    /// The render check's silhouettes learned by `learn` for `key` (the JSON of everything they
+    /// depend on), learned once.
+    pub(super) fn render_check(
+        &self,
+        key: String,
+        learn: impl FnOnce() -> Option<Learned>,
+    ) -> Option<Arc<Learned>> {
+        let learned = memo(&self.render_checks, key, || Ok(learn().map(Arc::new)));
+        match learned {
+            Ok(learned) => learned.as_ref().clone(),
+            Err(never) => match never {},
+        }
     }
 
     /// How many distinct shared fits the workbench holds.
@@ -327,6 +346,53 @@ mod tests {
         assert_eq!(key(&settings), key(&settings.clone()));
         assert_ne!(key(&settings), key(&other));
         assert!(fit_key(Method::KNN, &settings, &data).is_none());
+    }
+
+    #[test]
+    fn a_shared_fit_sees_the_render_check_only_through_the_detection_share() {
+        let names = vec!["f".to_string()];
+        let poses: Vec<[f64; 2]> = (0..200).map(|i| [f64::from(i), 0.0]).collect();
+        let rows: Vec<Vec<Option<f64>>> = (0..200).map(|i| vec![Some(f64::from(i))]).collect();
+        let labelled = || Labelled {
+            poses: &poses,
+            rows: &rows,
+        };
+        let mut data = TrainingSet::new(&names, labelled());
+        data.calibration = Some(labelled());
+        let key = |change: &dyn Fn(&mut ConfidenceSettings)| {
+            let mut settings = EstimatorSettings::default();
+            change(&mut settings.confidence);
+            fit_key(Method::GP, &settings, &data).expect("the GP shares")
+        };
+        // On by default on 200 calibration frames, so the score keeps 0.005 of the 0.01.
+        let default = key(&|_| {});
+        assert_eq!(default, key(&|c| c.render_check = Some(true)));
+        assert_eq!(default, key(&|c| c.render_from = RenderSource::Simulator));
+        assert_ne!(default, key(&|c| c.render_check = Some(false)));
+        let halved = |c: &mut ConfidenceSettings| {
+            c.render_check = Some(false);
+            c.abstain_share = 0.005;
+        };
+        assert_eq!(default, key(&halved));
+    }
+
+    #[test]
+    fn the_render_checks_silhouettes_are_learned_once_per_key() {
+        let bench = Workbench::new();
+        let calls = std::cell::Cell::new(0);
+        let learn = || {
+            calls.set(calls.get() + 1);
+            None
+        };
+        assert!(bench.render_check("a".into(), learn).is_none());
+        assert!(bench.render_check("a".into(), learn).is_none());
+        assert_eq!(
+            calls.get(),
+            1,
+            "the same key: learned once, too few silhouettes kept"
+        );
+        assert!(bench.render_check("b".into(), learn).is_none());
+        assert_eq!(calls.get(), 2);
     }
 
     #[test]
