@@ -45,7 +45,8 @@ impl TrackCheck {
             (None, Some(_), _) => {
                 eprintln!(
                     "note: {} carries the render check's limit from its run; pass --samples with \
-                     the sample frames it was trained on to apply it",
+                     the sample frames it was trained on to apply it (a run's: `evitrack \
+                     simulate --scenario RUN_FOLDER/scenario.toml --part sample --out SAMPLES`)",
                     model.display()
                 );
                 return Ok(None);

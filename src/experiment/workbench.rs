@@ -42,12 +42,14 @@ pub struct Workbench {
     fits: Mutex<HashMap<Vec<u8>, SharedFit>>,
     /// The render check's learned silhouettes, keyed by what they depend on; `None` where the
     /// sample frames show too few silhouettes.
-    render_checks: Mutex<HashMap<String, Shared<Option<Arc<Learned>>, Infallible>>>,
+    render_checks: Mutex<HashMap<String, SharedRenderCheck>>,
     /// Threads one simulation or extraction may use (0 and 1: the calling thread only).
     threads: usize,
 }
 
 type SharedFit = Arc<OnceLock<Option<Arc<dyn PoseEstimator>>>>;
+
+type SharedRenderCheck = Shared<Option<Arc<Learned>>, Infallible>;
 
 fn memo<K: Hash + Eq, T, E: Clone>(
     map: &Mutex<HashMap<K, Shared<T, E>>>,
