@@ -7,6 +7,7 @@ use std::collections::HashMap;
 
 use evitrack::estimator::RenderSource;
 use evitrack::report::{ConfidenceSummary, RunSummary};
+use evitrack::scenario::ScenarioSet;
 
 /// The variants of `scenarios/confidence.toml` named in `variants`, each meeting its
 /// expectations, their files without an undocumented non-finite number (the three tests run
@@ -206,4 +207,71 @@ fn assert_the_render_check_catches_the_dark_box(runs: &HashMap<String, RunSummar
     assert!(checked
         .method("centre")
         .is_some_and(|m| m.render_check.is_none()));
+}
+
+/// Left out of a scenario, the render check runs where the calibration motion can learn its
+/// limit (199 frames at the default share) and stays out, without an error, where it cannot:
+/// too few calibration frames, or sample frames without a silhouette. Asked for there, the run
+/// says why it cannot.
+#[test]
+fn the_default_render_check_runs_where_it_can_be_learned_and_stays_out_elsewhere() {
+    let scenario = |seconds: f64, silhouettes: bool, asked: bool| {
+        let contrast = if silhouettes { 20.0 } else { 255.0 };
+        let text = format!(
+            r#"
+name = "default-check"
+estimators = ["knn"]
+[sample]
+motion = {{ kind = "mesh", spacing = 2.0 }}
+[validation]
+kind = "random_path"
+seed = 11
+speed = 6.0
+duration = {seconds:?}
+fps = 20.0
+[[tests]]
+kind = "circle"
+radius = 5.0
+speed = 10.0
+duration = 2.0
+fps = 10.0
+[features.silhouette]
+min_contrast = {contrast:?}
+[features.size_functions]
+enabled = false
+[features.barycentre]
+enabled = true
+{}
+"#,
+            if asked {
+                "[confidence]\nrender_check = true"
+            } else {
+                ""
+            }
+        );
+        ScenarioSet::parse(&text, "default-check.toml")
+            .expect("valid")
+            .base
+    };
+    let run = |s| evitrack::experiment::run(&s, crate::bench(), &mut |_, _, _| {});
+    let check = |s| {
+        let output = run(s).expect("the run succeeds");
+        output.summary.methods[0].render_check.clone()
+    };
+    let on = check(scenario(10.0, true, false)).expect("on by default on 200 frames");
+    assert_eq!(
+        (on.calibration_frames, on.from),
+        (200, RenderSource::Samples)
+    );
+    assert!(on.limit_px.is_some());
+    assert!(
+        check(scenario(9.5, true, false)).is_none(),
+        "190 frames: off"
+    );
+    assert!(
+        check(scenario(10.0, false, false)).is_none(),
+        "no silhouette: off"
+    );
+    let refused = run(scenario(10.0, false, true)).expect_err("asked for, it cannot run");
+    assert!(refused.to_string().contains("fewer than 3"), "{refused}");
 }
