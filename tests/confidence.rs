@@ -221,6 +221,7 @@ fn the_default_render_check_runs_where_it_can_be_learned_and_stays_out_elsewhere
             r#"
 name = "default-check"
 estimators = ["knn"]
+tests = [{{ kind = "circle", radius = 4.0, speed = 8.0, duration = 1.5, fps = 10.0 }}]
 [sample]
 motion = {{ kind = "mesh", spacing = 2.0 }}
 [validation]
@@ -229,12 +230,6 @@ seed = 11
 speed = 6.0
 duration = {seconds:?}
 fps = 20.0
-[[tests]]
-kind = "circle"
-radius = 5.0
-speed = 10.0
-duration = 2.0
-fps = 10.0
 [features.silhouette]
 min_contrast = {contrast:?}
 [features.size_functions]
