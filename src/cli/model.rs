@@ -215,9 +215,10 @@ pub struct TrackArgs {
     /// model file runs no program by itself). Repeatable.
     #[arg(long = "feature-program", value_name = "FILE.toml")]
     feature_program: Vec<PathBuf>,
-    /// The sample frames the model was trained on (a dataset folder): with a model file from a
-    /// run with `confidence.render_check`, each estimate whose predicted silhouette misses the
-    /// frame's by more than the run's limit abstains (flag `render_mismatch`), as in the run.
+    /// The sample frames the model was trained on (a dataset folder): with a model file that
+    /// carries the render check's limit (`confidence.render_check`, on by default), each estimate
+    /// whose predicted silhouette misses the frame's by more than that limit abstains (flag
+    /// `render_mismatch`), as in the run.
     #[arg(long, value_name = "SAMPLE_DATASET")]
     samples: Option<PathBuf>,
     /// Options given here replace the model's tracker settings.

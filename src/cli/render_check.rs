@@ -1,6 +1,6 @@
-//! The render check for model files: `train` learns its limit (with `confidence.render_check`
-//! and a validation dataset), `track --samples` applies the limit a model file carries, with the
-//! silhouette at each estimate predicted from the sample frames the model was trained on.
+//! The render check for model files: `train` learns its limit (on by default, given a validation
+//! dataset of 199 frames or more), `track --samples` applies the limit a model file carries, with
+//! the silhouette at each estimate predicted from the sample frames the model was trained on.
 
 use std::path::Path;
 
@@ -52,9 +52,9 @@ impl TrackCheck {
                 return Ok(None);
             }
             (Some(_), _, _) => bail!(
-                "{} has no render-check limit to apply (it was not written by a run or `train` \
-                 with `confidence.render_check` and `render_from = \"samples\"`, or tracker \
-                 options left its calibration out): leave --samples out",
+                "{} has no render-check limit to apply (its run or `train` learned none: the \
+                 check off, `render_from = \"simulator\"`, too few calibration frames for its \
+                 share, or tracker options left its calibration out): leave --samples out",
                 model.display()
             ),
         };
