@@ -1,5 +1,5 @@
-//! Every rule against its brute-force definition (`brute.rs`) on random small frames, to 1e-12,
-//! including total conflict and dogmatic inputs.
+//! Every rule against its brute-force definition (`brute.rs`) on random small frames, to 1e-12
+//! (divided by 1 − κ for the rules that normalise), including total conflict and dogmatic inputs.
 
 use super::brute::{self, Bf, Map};
 use super::*;
@@ -62,6 +62,7 @@ proptest! {
         let bf: Vec<Bf> = fs.iter().map(brute::to_bf).collect();
         let full = ((1u32 << n) - 1) as u16;
         let (dempster, kappa) = brute::dempster(&bf);
+        let (murphy, murphy_kappa) = brute::murphy(&bf);
         for rule in Rule::ALL {
             if rule == Rule::Cautious {
                 continue;
@@ -74,20 +75,27 @@ proptest! {
                 Rule::DuboisPrade => Some(brute::dubois_prade(&bf)),
                 Rule::Pcr6 => Some(brute::pcr6(&bf)),
                 Rule::Disjunctive => Some(brute::disjunctive(&bf)),
-                Rule::Murphy => brute::murphy(&bf).0,
+                Rule::Murphy => murphy.clone(),
                 Rule::Cautious => unreachable!(),
+            };
+            // Dividing by 1 − κ scales the rounding of the unnormalised masses by 1 / (1 − κ)
+            // (a gap of 1.3e-12 at κ = 0.9998 is 2.5e-16 before it).
+            let tolerance = match rule {
+                Rule::Dempster => TOL / (1.0 - kappa),
+                Rule::Murphy => TOL / (1.0 - murphy_kappa),
+                _ => TOL,
             };
             match (&c.mass, &want) {
                 (Some(m), Some(w)) => {
                     let g = gap(&as_map(m), w);
-                    prop_assert!(g < TOL, "{}: gap {g}", rule.name());
+                    prop_assert!(g < tolerance, "{}: gap {g} (κ {kappa})", rule.name());
                     prop_assert!(m.masses().iter().all(|&x| x > 0.0));
                 }
                 (None, None) => {}
                 _ => prop_assert!(false, "{}: result exists {} vs {}", rule.name(), c.mass.is_some(), want.is_some()),
             }
             if rule == Rule::Murphy {
-                check_level(&c, brute::murphy(&bf).1)?;
+                check_level(&c, murphy_kappa)?;
             } else {
                 check_level(&c, kappa)?;
             }
@@ -253,3 +261,4 @@ fn total_conflict_per_rule() {
         assert_eq!(c.conflict_level.is_infinite(), inf, "{}", rule.name());
     }
 }
+
