@@ -30,7 +30,7 @@ use std::sync::Arc;
 
 use image::GrayImage;
 
-use super::sample_silhouettes::SampleSilhouettes;
+use super::sample_silhouettes::{on_two_threads, SampleSilhouettes};
 use super::{ExperimentError, Workbench};
 use crate::dataset::{Dataset, Polarity};
 use crate::estimator::{
@@ -177,12 +177,14 @@ impl RenderCheck {
     }
 
     fn predicting(frames: FrameView, sample: &Dataset) -> Option<Self> {
-        let silhouettes = (sample.frames.iter()).filter_map(|frame| {
-            let truth = frame.truth?;
-            Some(([truth.x, truth.y], frames.silhouette(&frame.image)?))
+        let posed: Vec<([f64; 2], &GrayImage)> = (sample.frames.iter())
+            .filter_map(|frame| frame.truth.map(|t| ([t.x, t.y], &frame.image)))
+            .collect();
+        let silhouettes = on_two_threads(&posed, |&(pose, image)| {
+            Some((pose, frames.silhouette(image)?))
         });
         let (width, height) = (frames.width as usize, frames.height as usize);
-        let samples = SampleSilhouettes::new(width, height, silhouettes)?;
+        let samples = SampleSilhouettes::new(width, height, silhouettes.into_iter().flatten())?;
         Some(Self {
             frames,
             source: Source::Samples(samples),
@@ -238,7 +240,7 @@ impl RenderCheck {
     pub fn rendered(&self, at: [f64; 2]) -> Option<Vec<u64>> {
         let count = self.frames.pixel_count();
         match &self.source {
-            Source::Samples(samples) => Some(pack(samples.predict(at)?.into_iter(), count)),
+            Source::Samples(samples) => samples.predict_packed(at),
             Source::Renderer { camera, five_bar } => {
                 let coverage = camera.coverage(&Self::scene(five_bar, at)?);
                 Some(pack(coverage.iter().map(|&c| c >= 0.5), count))
@@ -402,8 +404,9 @@ impl Harness {
                 true => check.with_samples(sample)?,
                 false => check,
             };
+            let images: Vec<&GrayImage> = data.images().collect();
             Some(Learned {
-                calibration: data.images().map(|image| check.observe(image)).collect(),
+                calibration: on_two_threads(&images, |image| check.observe(image)),
                 check,
             })
         });

@@ -40,7 +40,7 @@ impl SampleSilhouettes {
         height: usize,
         samples: impl IntoIterator<Item = ([f64; 2], Vec<bool>)>,
     ) -> Option<Self> {
-        let (mut poses, mut fields) = (Vec::new(), Vec::new());
+        let (mut poses, mut masks) = (Vec::new(), Vec::new());
         for (pose, mask) in samples {
             assert_eq!(
                 mask.len(),
@@ -51,9 +51,14 @@ impl SampleSilhouettes {
                 return None;
             }
             poses.push(pose);
-            fields.push(signed_distances(&mask, width, height));
+            masks.push(mask);
         }
-        (poses.len() >= 3).then_some(Self {
+        if poses.len() < 3 {
+            return None;
+        }
+        // A sweep's other job waits for these fields.
+        let fields = on_two_threads(&masks, |mask| signed_distances(mask, width, height));
+        Some(Self {
             width,
             height,
             poses,
@@ -73,15 +78,23 @@ impl SampleSilhouettes {
 
     /// The silhouette predicted at `at` (row-major pixel flags); `None` where `at` is not finite.
     pub fn predict(&self, at: [f64; 2]) -> Option<Vec<bool>> {
-        let weights = self.weights(at)?;
-        let mut field = vec![0.0f32; self.width * self.height];
-        for (n, w) in weights {
-            let w = w as f32;
-            for (value, &sample) in field.iter_mut().zip(&self.fields[n]) {
-                *value += w * f32::from(sample);
-            }
-        }
-        Some(field.into_iter().map(|v| v > 0.0).collect())
+        let words = self.predict_packed(at)?;
+        Some(
+            (0..self.width * self.height)
+                .map(|i| words[i / 64] >> (i % 64) & 1 == 1)
+                .collect(),
+        )
+    }
+
+    /// [`SampleSilhouettes::predict`]'s flags packed into words (pixel i is bit i % 64 of word
+    /// i / 64), made 64 pixels at a time ([`predict_words`]): no frame-sized buffer per call.
+    pub fn predict_packed(&self, at: [f64; 2]) -> Option<Vec<u64>> {
+        let weights: Vec<(f32, &[i16])> = (self.weights(at)?.into_iter())
+            .map(|(n, w)| (w as f32, self.fields[n].as_slice()))
+            .collect();
+        let mut words = vec![0u64; (self.width * self.height).div_ceil(64)];
+        predict_words(&weights, &mut words, self.width * self.height);
+        Some(words)
     }
 
     /// The local linear fit's value at `at` as weights of the nearest samples' fields.
@@ -120,6 +133,83 @@ impl SampleSilhouettes {
                 })
                 .collect(),
         )
+    }
+}
+
+crate::simd::with_avx!(
+    /// The first `count` pixels of the field Σ weight·field, as the bits of `words`, with the
+    /// widest vectors the processor has: each pixel sums the same products in the same order
+    /// as a whole-frame pass would, so every width gives the same bits.
+    fn predict_words(weights: &[(f32, &[i16])], words: &mut [u64], count: usize) -> () =
+        predict_words_plain,
+    avx512 = predict_words_plain
+);
+
+#[inline(always)]
+fn predict_words_plain(weights: &[(f32, &[i16])], words: &mut [u64], count: usize) {
+    // Whole blocks of 64 as arrays, so the compiler keeps them in vector registers.
+    let whole = count / 64;
+    for (b, word) in words.iter_mut().enumerate().take(whole) {
+        let mut block = [0.0f32; 64];
+        for &(w, field) in weights {
+            let samples: &[i16; 64] = field[b * 64..b * 64 + 64].try_into().expect("64");
+            for (value, &sample) in block.iter_mut().zip(samples) {
+                *value += w * f32::from(sample);
+            }
+        }
+        *word = bits(&block);
+    }
+    if !count.is_multiple_of(64) {
+        let mut block = [0.0f32; 64];
+        let tail = &mut block[..count % 64];
+        for &(w, field) in weights {
+            for (value, &sample) in tail.iter_mut().zip(&field[whole * 64..]) {
+                *value += w * f32::from(sample);
+            }
+        }
+        // The pixels past the frame stay 0, so their bits stay clear.
+        words[whole] = bits(&block);
+    }
+}
+
+/// `f` of every item, in order, half of them on a second thread; a panic there goes on here, as
+/// without the thread.
+pub(super) fn on_two_threads<T: Sync, U: Send>(items: &[T], f: impl Fn(&T) -> U + Sync) -> Vec<U> {
+    let (first, second) = items.split_at(items.len() / 2);
+    std::thread::scope(|scope| {
+        let f = &f;
+        let other = scope.spawn(move || second.iter().map(f).collect::<Vec<U>>());
+        let mut all: Vec<U> = first.iter().map(f).collect();
+        all.extend(
+            other
+                .join()
+                .unwrap_or_else(|p| std::panic::resume_unwind(p)),
+        );
+        all
+    })
+}
+
+/// Bit i set where `values[i]` is positive (above 0; not 0, not NaN), four at a time with SSE2's
+/// compare and movemask, which every x86_64 processor has (packing flag by flag cost more than
+/// the sums it packs).
+#[inline(always)]
+fn bits(values: &[f32; 64]) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_cmpgt_ps, _mm_loadu_ps, _mm_movemask_ps, _mm_setzero_ps};
+        let mut word = 0u64;
+        for (i, quad) in values.chunks_exact(4).enumerate() {
+            // SAFETY: SSE2 is part of x86_64; `quad` holds the 4 floats the load reads.
+            let mask = unsafe {
+                _mm_movemask_ps(_mm_cmpgt_ps(_mm_loadu_ps(quad.as_ptr()), _mm_setzero_ps()))
+            };
+            word |= u64::from(mask as u32) << (4 * i);
+        }
+        word
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        (values.iter().enumerate()).fold(0, |word, (i, &v)| word | u64::from(v > 0.0) << i)
     }
 }
 

@@ -95,3 +95,43 @@ fn samples_on_a_line_and_undefined_inputs_are_handled() {
     let bad = [0.0, 1.0, f64::INFINITY].map(|x| ([x, 0.0], disc([0.0, 0.0])));
     assert!(SampleSilhouettes::new(WIDTH, HEIGHT, bad).is_none());
 }
+
+#[test]
+fn the_packed_prediction_is_the_whole_frame_sum_bit_for_bit() {
+    // A frame whose pixel count is not a multiple of 64 (851), so the last word is partial.
+    let (w, h) = (37, 23);
+    let blob = |at: [f64; 2]| -> Vec<bool> {
+        (0..w * h)
+            .map(|i| {
+                ((i % w) as f64 - 15.0 - 3.0 * at[0]).hypot((i / w) as f64 - 10.0 - 2.0 * at[1])
+                    < 6.0
+            })
+            .collect()
+    };
+    let poses = (0..5).flat_map(|j| (0..5).map(move |i| [i as f64 * 0.7, j as f64 * 0.7]));
+    let samples = SampleSilhouettes::new(w, h, poses.map(|p| (p, blob(p)))).expect("a mesh");
+    for at in [[0.3, 1.9], [1.4, 1.4], [2.8, 0.05], [-0.4, 3.1]] {
+        // The sum over the whole frame at once, as the prediction was first written.
+        let mut field = vec![0.0f32; w * h];
+        for (n, weight) in samples.weights(at).unwrap() {
+            for (value, &sample) in field.iter_mut().zip(&samples.fields[n]) {
+                *value += weight as f32 * f32::from(sample);
+            }
+        }
+        let words = samples.predict_packed(at).unwrap();
+        assert_eq!(words.len(), (w * h).div_ceil(64));
+        for (i, v) in field.iter().enumerate() {
+            assert_eq!(
+                words[i / 64] >> (i % 64) & 1 == 1,
+                *v > 0.0,
+                "{at:?} pixel {i}"
+            );
+        }
+        // Bits past the last pixel stay clear.
+        assert_eq!(words[words.len() - 1] >> ((w * h) % 64), 0);
+        assert_eq!(
+            samples.predict(at).unwrap(),
+            field.iter().map(|v| *v > 0.0).collect::<Vec<_>>()
+        );
+    }
+}

@@ -261,4 +261,3 @@ fn total_conflict_per_rule() {
         assert_eq!(c.conflict_level.is_infinite(), inf, "{}", rule.name());
     }
 }
-
