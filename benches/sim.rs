@@ -82,7 +82,7 @@ fn render_check(c: &mut Criterion) {
         .expect("simulate");
     let silhouette = evitrack::features::SilhouetteConfig::default();
     let renderer = RenderCheck::new(&s, &silhouette).expect("default settings are valid");
-    let from_samples = (renderer.clone().with_samples(&sample)).expect("400 silhouettes");
+    let from_samples = (renderer.clone().with_samples(&sample, 2)).expect("400 silhouettes");
     let at = [0.37, 47.08];
     let frame = evitrack::sim::render_pose(&s, at[0], at[1], 3).expect("rendered");
     let observed = renderer.observe(&frame);
@@ -96,7 +96,7 @@ fn render_check(c: &mut Criterion) {
     });
     group.sample_size(10);
     group.bench_function("learn_400_sample_silhouettes", |b| {
-        b.iter(|| black_box(renderer.clone().with_samples(&sample).is_some()))
+        b.iter(|| black_box(renderer.clone().with_samples(&sample, 2).is_some()))
     });
     group.finish();
 }

@@ -86,15 +86,15 @@ fn check_from_samples(
 ) -> Result<RenderCheck> {
     let camera = &frames.manifest.camera;
     let size = (camera.width, camera.height);
-    RenderCheck::from_samples(size, config.polarity, &config.silhouette, sample).with_context(
-        || {
+    let threads = super::cores();
+    RenderCheck::from_samples(size, config.polarity, &config.silhouette, sample, threads)
+        .with_context(|| {
             format!(
             "{what}: fewer than 3 frames have a pose and a silhouette of {} × {} px, too few to \
              predict the robot's silhouette",
             size.0, size.1
         )
-        },
-    )
+        })
 }
 
 /// A validation dataset with its feature rows and times.

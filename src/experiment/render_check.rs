@@ -30,7 +30,7 @@ use std::sync::Arc;
 
 use image::GrayImage;
 
-use super::sample_silhouettes::{on_two_threads, SampleSilhouettes};
+use super::sample_silhouettes::{on_threads, SampleSilhouettes};
 use super::{ExperimentError, Workbench};
 use crate::dataset::{Dataset, Polarity};
 use crate::estimator::{
@@ -154,12 +154,14 @@ impl RenderCheck {
 
     /// The check of recorded frames of `width × height` px with the body's `polarity`, whose
     /// silhouette the features take with `silhouette`, predicted from `sample`'s frames (`track
-    /// --samples`); `None` when fewer than 3 of those have a pose and a silhouette.
+    /// --samples`), learned on up to two of `threads`; `None` when fewer than 3 of those frames
+    /// have a pose and a silhouette.
     pub fn from_samples(
         (width, height): (u32, u32),
         polarity: Polarity,
         silhouette: &SilhouetteConfig,
         sample: &Dataset,
+        threads: usize,
     ) -> Option<Self> {
         let frames = FrameView {
             width,
@@ -167,24 +169,26 @@ impl RenderCheck {
             polarity,
             silhouette: silhouette.clone(),
         };
-        Self::predicting(frames, sample)
+        Self::predicting(frames, sample, threads)
     }
 
     /// The check that predicts the silhouette at an estimate from `sample`'s frames (those with
-    /// a pose and a silhouette) instead of rendering it; `None` when fewer than 3 have both.
-    pub fn with_samples(self, sample: &Dataset) -> Option<Self> {
-        Self::predicting(self.frames, sample)
+    /// a pose and a silhouette) instead of rendering it, learned on up to two of `threads`;
+    /// `None` when fewer than 3 have both.
+    pub fn with_samples(self, sample: &Dataset, threads: usize) -> Option<Self> {
+        Self::predicting(self.frames, sample, threads)
     }
 
-    fn predicting(frames: FrameView, sample: &Dataset) -> Option<Self> {
+    fn predicting(frames: FrameView, sample: &Dataset, threads: usize) -> Option<Self> {
         let posed: Vec<([f64; 2], &GrayImage)> = (sample.frames.iter())
             .filter_map(|frame| frame.truth.map(|t| ([t.x, t.y], &frame.image)))
             .collect();
-        let silhouettes = on_two_threads(&posed, |&(pose, image)| {
+        let silhouettes = on_threads(threads, &posed, |&(pose, image)| {
             Some((pose, frames.silhouette(image)?))
         });
         let (width, height) = (frames.width as usize, frames.height as usize);
-        let samples = SampleSilhouettes::new(width, height, silhouettes.into_iter().flatten())?;
+        let samples =
+            SampleSilhouettes::new(width, height, silhouettes.into_iter().flatten(), threads)?;
         Some(Self {
             frames,
             source: Source::Samples(samples),
@@ -401,12 +405,12 @@ impl Harness {
         .to_string();
         let learned = bench.render_check(key, || {
             let check = match from_samples {
-                true => check.with_samples(sample)?,
+                true => check.with_samples(sample, bench.threads())?,
                 false => check,
             };
             let images: Vec<&GrayImage> = data.images().collect();
             Some(Learned {
-                calibration: on_two_threads(&images, |image| check.observe(image)),
+                calibration: on_threads(bench.threads(), &images, |image| check.observe(image)),
                 check,
             })
         });

@@ -147,7 +147,7 @@ fn silhouettes_predicted_from_the_sample_frames_explain_a_frame_and_tell_pose_er
     let sample = crate::sim::simulate(&sim, &motion, 5, &mut |_, _| {}).expect("simulated");
     let check = renderer
         .clone()
-        .with_samples(&sample)
+        .with_samples(&sample, 2)
         .expect("25 silhouettes");
     let at = [c[0] + 0.37, c[1] - 0.42];
     let observed = check.observe(&render_pose(&sim, at[0], at[1], 9).expect("rendered"));
@@ -173,5 +173,5 @@ fn silhouettes_predicted_from_the_sample_frames_explain_a_frame_and_tell_pose_er
         points: vec![c, [c[0] + 1.0, c[1]]],
     };
     let two = crate::sim::simulate(&sim, &two, 5, &mut |_, _| {}).expect("simulated");
-    assert!(renderer.with_samples(&two).is_none());
+    assert!(renderer.with_samples(&two, 1).is_none());
 }

@@ -33,12 +33,15 @@ impl SampleSilhouettes {
     /// flags). `None` with fewer than 3 samples or a pose that is not finite: no plane can be
     /// fitted then.
     ///
+    /// The fields are made on two threads when `threads` is 2 or more (the same fields).
+    ///
     /// # Panics
     /// If a silhouette does not have `width × height` pixels (a caller's bug).
     pub fn new(
         width: usize,
         height: usize,
         samples: impl IntoIterator<Item = ([f64; 2], Vec<bool>)>,
+        threads: usize,
     ) -> Option<Self> {
         let (mut poses, mut masks) = (Vec::new(), Vec::new());
         for (pose, mask) in samples {
@@ -57,7 +60,9 @@ impl SampleSilhouettes {
             return None;
         }
         // A sweep's other job waits for these fields.
-        let fields = on_two_threads(&masks, |mask| signed_distances(mask, width, height));
+        let fields = on_threads(threads, &masks, |mask| {
+            signed_distances(mask, width, height)
+        });
         Some(Self {
             width,
             height,
@@ -172,9 +177,16 @@ fn predict_words_plain(weights: &[(f32, &[i16])], words: &mut [u64], count: usiz
     }
 }
 
-/// `f` of every item, in order, half of them on a second thread; a panic there goes on here, as
-/// without the thread.
-pub(super) fn on_two_threads<T: Sync, U: Send>(items: &[T], f: impl Fn(&T) -> U + Sync) -> Vec<U> {
+/// `f` of every item, in order; with `threads` 2 or more, half of them on a second thread (a
+/// panic there goes on here, as without the thread).
+pub(super) fn on_threads<T: Sync, U: Send>(
+    threads: usize,
+    items: &[T],
+    f: impl Fn(&T) -> U + Sync,
+) -> Vec<U> {
+    if threads < 2 {
+        return items.iter().map(f).collect();
+    }
     let (first, second) = items.split_at(items.len() / 2);
     std::thread::scope(|scope| {
         let f = &f;

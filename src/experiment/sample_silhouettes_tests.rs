@@ -21,7 +21,7 @@ fn mesh(spacing: f64, nodes: usize) -> SampleSilhouettes {
     let samples = poses
         .map(|p| [p[0] * spacing, p[1] * spacing])
         .map(|p| (p, disc(p)));
-    SampleSilhouettes::new(WIDTH, HEIGHT, samples).expect("a mesh")
+    SampleSilhouettes::new(WIDTH, HEIGHT, samples, 1).expect("a mesh")
 }
 
 #[test]
@@ -85,15 +85,15 @@ fn between_samples_the_prediction_follows_the_pose_far_closer_than_the_nearest_s
 fn samples_on_a_line_and_undefined_inputs_are_handled() {
     // Three samples on a line fix no plane: the kernel-weighted mean, still a silhouette.
     let line = [0.0, 1.0, 2.0].map(|x| ([x, 0.0], disc([x, 0.0])));
-    let samples = SampleSilhouettes::new(WIDTH, HEIGHT, line).expect("three samples");
+    let samples = SampleSilhouettes::new(WIDTH, HEIGHT, line, 1).expect("three samples");
     let predicted = samples.predict([1.0, 0.0]).expect("a finite pose");
     assert!(mismatch(&predicted, &disc([1.0, 0.0])) < 60);
     assert!(samples.predict([f64::NAN, 0.0]).is_none());
     // Fewer than three samples, or a pose that is not finite, fix nothing.
     let two = [0.0, 1.0].map(|x| ([x, 0.0], disc([x, 0.0])));
-    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, two).is_none());
+    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, two, 1).is_none());
     let bad = [0.0, 1.0, f64::INFINITY].map(|x| ([x, 0.0], disc([0.0, 0.0])));
-    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, bad).is_none());
+    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, bad, 1).is_none());
 }
 
 #[test]
@@ -109,7 +109,7 @@ fn the_packed_prediction_is_the_whole_frame_sum_bit_for_bit() {
             .collect()
     };
     let poses = (0..5).flat_map(|j| (0..5).map(move |i| [i as f64 * 0.7, j as f64 * 0.7]));
-    let samples = SampleSilhouettes::new(w, h, poses.map(|p| (p, blob(p)))).expect("a mesh");
+    let samples = SampleSilhouettes::new(w, h, poses.map(|p| (p, blob(p))), 1).expect("a mesh");
     for at in [[0.3, 1.9], [1.4, 1.4], [2.8, 0.05], [-0.4, 3.1]] {
         // The sum over the whole frame at once, as the prediction was first written.
         let mut field = vec![0.0f32; w * h];
@@ -134,4 +134,20 @@ fn the_packed_prediction_is_the_whole_frame_sum_bit_for_bit() {
             field.iter().map(|v| *v > 0.0).collect::<Vec<_>>()
         );
     }
+}
+
+#[test]
+fn two_threads_make_the_fields_of_one() {
+    let poses: Vec<[f64; 2]> = (0..7)
+        .flat_map(|j| (0..5).map(move |i| [i as f64, j as f64]))
+        .collect();
+    let made = |threads| {
+        SampleSilhouettes::new(WIDTH, HEIGHT, poses.iter().map(|&p| (p, disc(p))), threads)
+            .expect("a mesh")
+    };
+    let (one, two) = (made(1), made(2));
+    assert_eq!(one.poses, two.poses);
+    assert_eq!(one.fields, two.fields);
+    assert_eq!(on_threads(2, &[3, 1, 4], |x| x * 2), vec![6, 2, 8]);
+    assert_eq!(on_threads(2, &[] as &[i32], |x| x * 2), Vec::<i32>::new());
 }
