@@ -274,21 +274,29 @@ pub fn of_run(scenario: &CheckedScenario) -> Result<Estimate, MemoryError> {
         setting: "the features and the motions' frames".into(),
         bytes: (held as u64).saturating_mul(features as u64 * 16),
     });
-    // The render check from the samples keeps a distance field per sample, 2 bytes a pixel.
+    // The render check from the samples keeps a distance field per sample, 2 bytes a pixel;
+    // either source keeps the calibration and test frames' silhouettes, a bit a pixel.
     let confidence = &s.confidence;
     let calibration = s.calibration.as_ref().or(s.validation.as_ref());
     let calibration_frames = calibration.map(frames).transpose()?;
-    if confidence.render_check_on(calibration_frames)
-        && confidence.render_from == RenderSource::Samples
-    {
+    if confidence.render_check_on(calibration_frames) {
+        let pixels = camera.width as u64 * camera.height as u64;
+        let checked = calibration_frames.unwrap_or(0) + test;
         parts.push(Part {
-            what: format!(
-                "the render check's distance fields, {samples} samples of {} × {} px",
-                camera.width, camera.height
-            ),
-            setting: "confidence.render_check with render_from = \"samples\"".into(),
-            bytes: (samples as u64).saturating_mul(camera.width as u64 * camera.height as u64 * 2),
+            what: format!("the render check's silhouettes, {checked} frames, a bit a pixel"),
+            setting: "confidence.render_check".into(),
+            bytes: (checked as u64).saturating_mul(pixels.div_ceil(64) * 8),
         });
+        if confidence.render_from == RenderSource::Samples {
+            parts.push(Part {
+                what: format!(
+                    "the render check's distance fields, {samples} samples of {} × {} px",
+                    camera.width, camera.height
+                ),
+                setting: "confidence.render_check with render_from = \"samples\"".into(),
+                bytes: (samples as u64).saturating_mul(pixels * 2),
+            });
+        }
     }
     parts.extend(fit_parts(&s.estimators, &s.estimator_settings(), &shape));
     Ok(Estimate {

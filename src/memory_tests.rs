@@ -103,6 +103,16 @@ fn the_render_check_from_the_samples_holds_a_field_per_sample() {
     scenario.confidence.render_check = Some(true);
     scenario.confidence.render_from = RenderSource::Simulator;
     assert_eq!(fields(&scenario), None, "the renderer keeps none");
+    // Either source keeps the calibration and test frames' silhouettes, 319 words of 64 px each.
+    let estimate = of_run(&scenario.check().expect("valid")).expect("planned");
+    let silhouettes =
+        (estimate.parts.iter()).find(|p| p.what.contains("render check's silhouettes"));
+    // The 200 calibration frames and the default test motion's (10 s at 20 frames/s).
+    let frames = 200 + 200;
+    assert_eq!(silhouettes.map(|p| p.bytes), Some(frames * 319 * 8));
+    scenario.confidence.render_check = Some(false);
+    let estimate = of_run(&scenario.check().expect("valid")).expect("planned");
+    assert!(!(estimate.parts.iter()).any(|p| p.what.contains("render check")));
 }
 
 #[test]

@@ -183,12 +183,14 @@ impl RenderCheck {
         let posed: Vec<([f64; 2], &GrayImage)> = (sample.frames.iter())
             .filter_map(|frame| frame.truth.map(|t| ([t.x, t.y], &frame.image)))
             .collect();
-        let silhouettes = on_threads(threads, &posed, |&(pose, image)| {
-            Some((pose, frames.silhouette(image)?))
-        });
         let (width, height) = (frames.width as usize, frames.height as usize);
-        let samples =
-            SampleSilhouettes::new(width, height, silhouettes.into_iter().flatten(), threads)?;
+        let samples = SampleSilhouettes::new(
+            width,
+            height,
+            &posed,
+            |&(pose, image)| Some((pose, frames.silhouette(image)?)),
+            threads,
+        )?;
         Some(Self {
             frames,
             source: Source::Samples(samples),

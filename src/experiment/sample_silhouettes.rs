@@ -29,40 +29,36 @@ pub struct SampleSilhouettes {
 }
 
 impl SampleSilhouettes {
-    /// The fields of `samples` (a pose and its silhouette, `width × height` row-major pixel
-    /// flags). `None` with fewer than 3 samples or a pose that is not finite: no plane can be
-    /// fitted then.
+    /// The fields of the silhouettes `silhouette` makes of `frames` (a pose and its `width ×
+    /// height` row-major pixel flags; `None` skips the frame). `None` with fewer than 3 samples
+    /// or a pose that is not finite: no plane can be fitted then.
     ///
-    /// The fields are made on two threads when `threads` is 2 or more (the same fields).
+    /// The fields are made on two threads when `threads` is 2 or more (the same fields); each
+    /// silhouette becomes its field where it is made, so one at a time per thread is held.
     ///
     /// # Panics
     /// If a silhouette does not have `width × height` pixels (a caller's bug).
-    pub fn new(
+    pub fn new<T: Sync>(
         width: usize,
         height: usize,
-        samples: impl IntoIterator<Item = ([f64; 2], Vec<bool>)>,
+        frames: &[T],
+        silhouette: impl Fn(&T) -> Option<([f64; 2], Vec<bool>)> + Sync,
         threads: usize,
     ) -> Option<Self> {
-        let (mut poses, mut masks) = (Vec::new(), Vec::new());
-        for (pose, mask) in samples {
+        // A sweep's other job waits for these fields.
+        let made = on_threads(threads, frames, |frame| {
+            let (pose, mask) = silhouette(frame)?;
             assert_eq!(
                 mask.len(),
                 width * height,
                 "a silhouette of the frame's size"
             );
-            if !pose.iter().all(|v| v.is_finite()) {
-                return None;
-            }
-            poses.push(pose);
-            masks.push(mask);
-        }
-        if poses.len() < 3 {
+            Some((pose, signed_distances(&mask, width, height)))
+        });
+        let (poses, fields): (Vec<[f64; 2]>, Vec<Vec<i16>>) = made.into_iter().flatten().unzip();
+        if poses.len() < 3 || !poses.iter().flatten().all(|v| v.is_finite()) {
             return None;
         }
-        // A sweep's other job waits for these fields.
-        let fields = on_threads(threads, &masks, |mask| {
-            signed_distances(mask, width, height)
-        });
         Some(Self {
             width,
             height,

@@ -18,10 +18,8 @@ fn mismatch(a: &[bool], b: &[bool]) -> usize {
 
 fn mesh(spacing: f64, nodes: usize) -> SampleSilhouettes {
     let poses = (0..nodes).flat_map(|j| (0..nodes).map(move |i| [i as f64, j as f64]));
-    let samples = poses
-        .map(|p| [p[0] * spacing, p[1] * spacing])
-        .map(|p| (p, disc(p)));
-    SampleSilhouettes::new(WIDTH, HEIGHT, samples, 1).expect("a mesh")
+    let poses: Vec<[f64; 2]> = poses.map(|p| [p[0] * spacing, p[1] * spacing]).collect();
+    SampleSilhouettes::new(WIDTH, HEIGHT, &poses, |&p| Some((p, disc(p))), 1).expect("a mesh")
 }
 
 #[test]
@@ -85,15 +83,20 @@ fn between_samples_the_prediction_follows_the_pose_far_closer_than_the_nearest_s
 fn samples_on_a_line_and_undefined_inputs_are_handled() {
     // Three samples on a line fix no plane: the kernel-weighted mean, still a silhouette.
     let line = [0.0, 1.0, 2.0].map(|x| ([x, 0.0], disc([x, 0.0])));
-    let samples = SampleSilhouettes::new(WIDTH, HEIGHT, line, 1).expect("three samples");
+    let given = |sample: &([f64; 2], Vec<bool>)| Some(sample.clone());
+    let samples = SampleSilhouettes::new(WIDTH, HEIGHT, &line, given, 1).expect("three samples");
     let predicted = samples.predict([1.0, 0.0]).expect("a finite pose");
     assert!(mismatch(&predicted, &disc([1.0, 0.0])) < 60);
     assert!(samples.predict([f64::NAN, 0.0]).is_none());
     // Fewer than three samples, or a pose that is not finite, fix nothing.
     let two = [0.0, 1.0].map(|x| ([x, 0.0], disc([x, 0.0])));
-    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, two, 1).is_none());
+    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, &two, given, 1).is_none());
     let bad = [0.0, 1.0, f64::INFINITY].map(|x| ([x, 0.0], disc([0.0, 0.0])));
-    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, bad, 1).is_none());
+    assert!(SampleSilhouettes::new(WIDTH, HEIGHT, &bad, given, 1).is_none());
+    // Frames without a silhouette are skipped: three of five leave a plane.
+    let some = |&x: &f64| (x < 3.0).then(|| ([x, 0.0], disc([x, 0.0])));
+    let kept = SampleSilhouettes::new(WIDTH, HEIGHT, &[0.0, 1.0, 2.0, 3.0, 4.0], some, 2);
+    assert_eq!(kept.expect("three kept").len(), 3);
 }
 
 #[test]
@@ -109,7 +112,8 @@ fn the_packed_prediction_is_the_whole_frame_sum_bit_for_bit() {
             .collect()
     };
     let poses = (0..5).flat_map(|j| (0..5).map(move |i| [i as f64 * 0.7, j as f64 * 0.7]));
-    let samples = SampleSilhouettes::new(w, h, poses.map(|p| (p, blob(p))), 1).expect("a mesh");
+    let poses: Vec<[f64; 2]> = poses.collect();
+    let samples = SampleSilhouettes::new(w, h, &poses, |&p| Some((p, blob(p))), 1).expect("a mesh");
     for at in [[0.3, 1.9], [1.4, 1.4], [2.8, 0.05], [-0.4, 3.1]] {
         // The sum over the whole frame at once, as the prediction was first written.
         let mut field = vec![0.0f32; w * h];
@@ -142,7 +146,7 @@ fn two_threads_make_the_fields_of_one() {
         .flat_map(|j| (0..5).map(move |i| [i as f64, j as f64]))
         .collect();
     let made = |threads| {
-        SampleSilhouettes::new(WIDTH, HEIGHT, poses.iter().map(|&p| (p, disc(p))), threads)
+        SampleSilhouettes::new(WIDTH, HEIGHT, &poses, |&p| Some((p, disc(p))), threads)
             .expect("a mesh")
     };
     let (one, two) = (made(1), made(2));
