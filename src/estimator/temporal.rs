@@ -319,6 +319,14 @@ impl EvidentialMotion<'_> {
             .unwrap_or_else(|| line_spread(refinement.spacing(), &self.misses, file.frame_error))
     }
 
+    /// Whether a frame of this level of conflict among all its usable features is not carried
+    /// (`temporal.skip_incoherent`): beyond the conflict threshold, or none.
+    fn skips(&self, full_conflict_level: Option<f64>) -> bool {
+        let threshold = self.estimator.inner.tracker().settings().conflict_threshold;
+        self.estimator.file.settings.skip_incoherent
+            && !full_conflict_level.is_some_and(|level| threshold.admits(level))
+    }
+
     /// Keeps how far the line's prediction at `time` lay from `measured`, a frame's estimate
     /// on the sample weights.
     fn remember_miss(&mut self, time: f64, measured: Option<[f64; 2]>) {
@@ -353,6 +361,9 @@ impl MotionTracker for EvidentialMotion<'_> {
         let tracker = inner.tracker();
         let Some((last, contour)) = self.past.take() else {
             let frame = inner.track(features)?;
+            if self.skips(frame.full_conflict_level) {
+                return Ok(pose_estimate(frame));
+            }
             self.past = scaled_to_max(&frame.plausibility).map(|c| (time, c));
             let own = frame.group.len();
             let estimate = pose_estimate(frame);
@@ -379,6 +390,10 @@ impl MotionTracker for EvidentialMotion<'_> {
                 if let Some(pose) = self.refined(time, &outcome.frame.plausibility) {
                     estimate.pose = Some(pose);
                 }
+            }
+            if self.skips(outcome.frame.full_conflict_level) {
+                self.past = Some((last, contour));
+                return Ok(estimate);
             }
             let own = outcome.frame.group.len();
             // Only frames that would feed the line measure its miss.

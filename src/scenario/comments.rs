@@ -162,7 +162,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("continuous.threshold_rule", "As threshold_rule, for this tracker."),
     ("continuous.threshold_rule.validation_max", "The factor F (at least 1)."),
     ("continuous.threshold_rule.quantile", "The quantile Q of the validation levels."),
-    ("temporal", "The motion model of the temporal methods. Optional, learned or derived when\nleft out: reliability (of the carried belief), past_weight (features it counts as),\nlearn_velocity, velocity_spread (mm)."),
+    ("temporal", "The motion model of the temporal methods. Optional, learned or derived when\nleft out: reliability (of the carried belief), past_weight (features it counts as),\nlearn_velocity, velocity_spread (mm), skip_incoherent (frames beyond the threshold not carried)."),
     ("temporal.max_speed", "Reach per second of the motion model (mm/s)."),
     ("temporal.velocity_frames", "Estimates the velocity line goes through (0: constant position)."),
     ("particle_filter", "The particle filter. Optional, learned on the validation motion when left out:\nmotion_noise (σ, mm/s), outlier_share (ε)."),

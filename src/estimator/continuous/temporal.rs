@@ -207,6 +207,16 @@ struct ContinuousMotion<'a> {
     line: VelocityLine,
 }
 
+impl ContinuousMotion<'_> {
+    /// Whether a frame of this detection score is not carried (`temporal.skip_incoherent`):
+    /// its usable features together are beyond the conflict threshold (or it has no score).
+    fn skips(&self, detection_score: Option<f64>) -> bool {
+        let estimator = self.estimator;
+        estimator.file.settings.skip_incoherent
+            && !detection_score.is_some_and(|score| estimator.inner.threshold().admits(score))
+    }
+}
+
 /// 1/√ of the smallest eigenvalue of a curvature (mm), kept within [1 µm, 19 mm].
 fn broadest_spread(curvature: [[f64; 2]; 2]) -> f64 {
     let [[a, b], [_, c]] = curvature;
@@ -228,7 +238,8 @@ impl MotionTracker for ContinuousMotion<'_> {
         let model = &self.estimator.inner;
         let Some(last) = self.past else {
             let estimate = model.estimate(features)?;
-            if let Some(pose) = estimate.pose {
+            let carried = !self.skips(estimate.detection_score);
+            if let (Some(pose), true) = (estimate.pose, carried) {
                 let mut frame = Frame::new(
                     model,
                     model.usable(frame_values(features, model.file.header.feature_names.len())?.0),
@@ -330,20 +341,23 @@ impl MotionTracker for ContinuousMotion<'_> {
         } else {
             spread
         };
-        self.past = Some(Last {
-            time,
-            pose: fit.pose,
-            scale,
-        });
-        let own = features_only.count_ones() as usize;
-        self.line
-            .feed(time, Some(fit.pose), own, weight, past_joins);
+        let detection_score = frame.grid_level(usable, f64::INFINITY).value;
+        if !self.skips(Some(detection_score)) {
+            self.past = Some(Last {
+                time,
+                pose: fit.pose,
+                scale,
+            });
+            let own = features_only.count_ones() as usize;
+            self.line
+                .feed(time, Some(fit.pose), own, weight, past_joins);
+        }
         Ok(PoseEstimate {
             pose: Some(fit.pose),
             uncertainty_radius: region.as_ref().map(|r| r.semi_major),
             group: Some(members(features_only).collect()),
             conflict_level: Some(level),
-            detection_score: Some(frame.grid_level(usable, f64::INFINITY).value),
+            detection_score: Some(detection_score),
             region,
             covariance: crate::estimator::laplace_covariance(fit.curvature),
             flags: crate::estimator::EstimateFlags {

@@ -52,6 +52,14 @@ pub struct TemporalSettings {
     /// `evidential_temporal` to the RMS of the line's last five misses.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub velocity_spread: Option<f64>,
+    /// `evidential_temporal` and `continuous_temporal`: a frame whose usable features together
+    /// are beyond the conflict threshold still gets its estimate, but is not carried: the past
+    /// and the velocity line stay as the last frame within it left them, and the reach grows
+    /// with the time since. A bright box or glare corrupts every global feature; carried, that
+    /// frame's wrong pose joins the next clean frame (it counts as half the features) and pulls it
+    /// millimetres off.
+    #[serde(skip_serializing_if = "is_false")]
+    pub skip_incoherent: bool,
 }
 
 /// The reliabilities tried when learning α.
@@ -78,6 +86,7 @@ impl Default for TemporalSettings {
             velocity_frames: 3,
             learn_velocity: true,
             velocity_spread: None,
+            skip_incoherent: false,
         }
     }
 }
@@ -226,6 +235,10 @@ pub(crate) fn learned_motion(
         }
     }
     Ok(best.map(|(_, choice)| choice))
+}
+
+fn is_false(value: &bool) -> bool {
+    !*value
 }
 
 fn is_true(value: &bool) -> bool {
