@@ -35,7 +35,7 @@ pub use continuous::{
 pub use evidential::{Evidential, EvidentialSettings, MAX_FEATURES_GROUP_ERRORS};
 pub use gp::{Gp, GpHyperparameters, GpSettings};
 pub use knn::{Knn, KnnSettings, KnnWeights};
-pub use motion::{TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES};
+pub use motion::{IncoherentFrames, TemporalSettings, DEFAULT_RELIABILITY, RELIABILITY_CANDIDATES};
 pub(crate) use motion::{REFINE_MAX_POINTS, REFINE_SUBDIVISIONS};
 pub use particle::{FilterScore, ParticleFilter, ParticleSettings};
 pub use registry::{

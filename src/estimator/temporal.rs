@@ -32,8 +32,8 @@ use serde::{Deserialize, Serialize};
 
 use super::evidential::pose_estimate;
 use super::motion::{
-    learned_motion, motion_error, PoseBuckets, Refinement, TemporalSettings, VelocityLine,
-    DEFAULT_RELIABILITY,
+    learned_motion, motion_error, IncoherentFrames, PoseBuckets, Refinement, TemporalSettings,
+    VelocityLine, DEFAULT_RELIABILITY,
 };
 use super::{
     EstimatorError, Evidential, EvidentialSettings, MotionTracker, PoseEstimate, PoseEstimator,
@@ -272,6 +272,7 @@ impl PoseEstimator for TemporalEvidential {
         Box::new(EvidentialMotion {
             estimator: self,
             past: None,
+            doubtful: false,
             line: VelocityLine::new(self.file.velocity_frames),
             misses: Vec::new(),
         })
@@ -298,6 +299,8 @@ struct EvidentialMotion<'a> {
     estimator: &'a TemporalEvidential,
     /// The last frame's time and the contour carried from it (max 1, before moving).
     past: Option<(f64, Vec<f64>)>,
+    /// The past comes from a frame whose usable features together were beyond the threshold.
+    doubtful: bool,
     /// The line through the last estimates of frames whose own features outweighed the past.
     line: VelocityLine,
     /// The squared distances between the line's last predictions and those frames' estimates
@@ -319,12 +322,11 @@ impl EvidentialMotion<'_> {
             .unwrap_or_else(|| line_spread(refinement.spacing(), &self.misses, file.frame_error))
     }
 
-    /// Whether a frame of this level of conflict among all its usable features is not carried
-    /// (`temporal.skip_incoherent`): beyond the conflict threshold, or none.
-    fn skips(&self, full_conflict_level: Option<f64>) -> bool {
+    /// Whether a frame with this level of conflict among all its usable features is beyond
+    /// the conflict threshold (or has no level).
+    fn incoherent(&self, full_conflict_level: Option<f64>) -> bool {
         let threshold = self.estimator.inner.tracker().settings().conflict_threshold;
-        self.estimator.file.settings.skip_incoherent
-            && !full_conflict_level.is_some_and(|level| threshold.admits(level))
+        !full_conflict_level.is_some_and(|level| threshold.admits(level))
     }
 
     /// Keeps how far the line's prediction at `time` lay from `measured`, a frame's estimate
@@ -359,12 +361,15 @@ impl MotionTracker for EvidentialMotion<'_> {
     ) -> Result<PoseEstimate, EstimatorError> {
         let inner = &self.estimator.inner;
         let tracker = inner.tracker();
+        let policy = self.estimator.file.settings.incoherent_frames;
         let Some((last, contour)) = self.past.take() else {
             let frame = inner.track(features)?;
-            if self.skips(frame.full_conflict_level) {
+            let incoherent = self.incoherent(frame.full_conflict_level);
+            if incoherent && policy == IncoherentFrames::Skipped {
                 return Ok(pose_estimate(frame));
             }
             self.past = scaled_to_max(&frame.plausibility).map(|c| (time, c));
+            self.doubtful = incoherent;
             let own = frame.group.len();
             let estimate = pose_estimate(frame);
             let weight = self.estimator.file.settings.past_weight_for(features.len());
@@ -380,7 +385,8 @@ impl MotionTracker for EvidentialMotion<'_> {
         let likelihoods = inner.model().frames().likelihoods(features)?;
         let settings = &self.estimator.file.settings;
         let weight = settings.past_weight_for(likelihoods.len());
-        let outcome = tracker.track_with_past(&likelihoods, &carried, weight)?;
+        let doubtful = self.doubtful && policy == IncoherentFrames::Outweighed;
+        let outcome = tracker.track_with_past(&likelihoods, &carried, weight, doubtful)?;
         let mut estimate = pose_estimate(outcome.frame.clone());
         if outcome.frame.estimate.is_some() {
             estimate.flags.past_rejected = !outcome.past_joined;
@@ -391,10 +397,12 @@ impl MotionTracker for EvidentialMotion<'_> {
                     estimate.pose = Some(pose);
                 }
             }
-            if self.skips(outcome.frame.full_conflict_level) {
+            let incoherent = self.incoherent(outcome.frame.full_conflict_level);
+            if incoherent && policy == IncoherentFrames::Skipped {
                 self.past = Some((last, contour));
                 return Ok(estimate);
             }
+            self.doubtful = incoherent;
             let own = outcome.frame.group.len();
             // Only frames that would feed the line measure its miss.
             if own as f64 > weight {

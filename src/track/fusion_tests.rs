@@ -269,7 +269,7 @@ fn the_past_joins_every_feature_combined_by_the_rule() {
         let t = tracker(Constructor::Bayesian, None, settings);
         let lik = &frames()[0];
         let alone = t.track(lik).unwrap();
-        let with = t.track_with_past(lik, &carried, 1.0).unwrap();
+        let with = t.track_with_past(lik, &carried, 1.0, false).unwrap();
         assert!(with.past_joined, "{rule:?}");
         assert_eq!(with.frame.group, vec![0, 1, 2]);
         let total: f64 = alone

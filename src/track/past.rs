@@ -361,6 +361,10 @@ impl Tracker {
     /// when the past wins alone, every usable feature is excluded and the estimate is the carried
     /// belief's. Without usable features there is no estimate (the caller predicts).
     ///
+    /// A `doubtful` past (carried from a frame whose features disagreed beyond the threshold)
+    /// joins a frame whose usable features all agree only beside every one of them: such a past
+    /// may not outweigh a feature of a coherent frame.
+    ///
     /// # Errors
     /// [`TrackError::FeatureInputCount`]; [`TrackError::InvalidSetting`] for the splitting
     /// policy (its alternatives are not weighed against the past) or a carried contour of the
@@ -370,6 +374,7 @@ impl Tracker {
         likelihoods: &[Option<Vec<f64>>],
         carried: &[f64],
         past_weight: f64,
+        doubtful: bool,
     ) -> Result<PastFrame, TrackError> {
         if let SelectionPolicy::Splitting { .. } = self.settings.selection {
             return Err(TrackError::InvalidSetting {
@@ -419,6 +424,12 @@ impl Tracker {
                 |levels, group| levels.proven_within(group, threshold),
             );
             let own = alone.group.iter().fold(0, |m: GroupMask, &i| m | 1 << i);
+            let coherent = own == usable_mask
+                && !alone.flags.fallback
+                && (alone.full_conflict_level).is_some_and(|level| threshold.admits(level));
+            if doubtful && coherent && features != usable_mask {
+                return Ok(frame_alone);
+            }
             if !past_outweighs(Some((own, alone.flags.fallback)), features, past_weight) {
                 return Ok(frame_alone);
             }

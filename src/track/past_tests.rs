@@ -16,7 +16,9 @@ fn a_vacuous_past_joins_and_changes_nothing() {
     for constructor in [Constructor::Bayesian, Constructor::Consonant] {
         let tracker = tiny_tracker(constructor);
         let alone = tracker.track(&frame()).unwrap();
-        let with = tracker.track_with_past(&frame(), &[1.0; 6], 1.0).unwrap();
+        let with = tracker
+            .track_with_past(&frame(), &[1.0; 6], 1.0, false)
+            .unwrap();
         assert!(with.past_joined, "{constructor:?}");
         assert_eq!(with.frame.group, alone.group);
         assert!((with.frame.conflict_level.unwrap() - alone.conflict_level.unwrap()).abs() < 1e-12);
@@ -35,7 +37,9 @@ fn the_past_level_is_the_conflict_of_the_combination_with_the_past() {
     // agreeing mass by Σ_F m(F) max_F c, checked against Dempster's rule on the poses.
     let tracker = tiny_tracker(Constructor::Bayesian);
     let carried = [0.25, 0.25, 0.25, 0.25, 1.0, 1.0];
-    let with = tracker.track_with_past(&frame(), &carried, 1.0).unwrap();
+    let with = tracker
+        .track_with_past(&frame(), &carried, 1.0, false)
+        .unwrap();
     assert!(with.past_joined);
     let alone = tracker.track(&frame()).unwrap();
     // Relative plausibility of the frame's combination per pose, times the carried contour.
@@ -168,13 +172,15 @@ fn a_past_in_total_conflict_is_dropped_and_the_frame_is_followed() {
         Some(vec![1.0, 0.0]),
     ];
     let with = tracker
-        .track_with_past(&lik, &[0.0, 0.0, 0.0, 0.0, 1.0, 1.0], 1.0)
+        .track_with_past(&lik, &[0.0, 0.0, 0.0, 0.0, 1.0, 1.0], 1.0, false)
         .unwrap();
     assert!(!with.past_joined);
     assert_eq!(with.frame.group, vec![0, 1, 2]);
     assert_eq!(with.frame.estimate, tracker.track(&lik).unwrap().estimate);
     // The wrong length and the splitting policy are refused with a message.
-    let short = tracker.track_with_past(&lik, &[1.0; 3], 1.0).unwrap_err();
+    let short = tracker
+        .track_with_past(&lik, &[1.0; 3], 1.0, false)
+        .unwrap_err();
     assert!(
         short.to_string().contains("one value per sample pose"),
         "{short}"
@@ -293,4 +299,39 @@ fn the_proof_bound_is_never_below_the_level_it_bounds() {
         bounded > 3000 && tight > 100 && above_one > 100,
         "{bounded} {tight} {above_one}"
     );
+}
+
+#[test]
+fn a_doubtful_past_never_outweighs_a_feature_of_a_coherent_frame() {
+    let mut tracker = tiny_tracker(Constructor::Bayesian);
+    // The three features agree (level 0.70) around pose 2; the past says pose 3, which
+    // feature 0 rules out.
+    let lik = vec![
+        Some(vec![0.7, 0.3]),
+        Some(vec![0.1, 0.6, 0.3]),
+        Some(vec![0.35, 0.65]),
+    ];
+    let past = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
+    tracker.settings.conflict_threshold = crate::evidence::ConflictLevel::Finite(2.0);
+    let alone = tracker.track(&lik).unwrap();
+    assert_eq!(alone.group, vec![0, 1, 2]);
+    // Counted as 1.5 features, the past outweighs feature 0 ...
+    let trusted = tracker.track_with_past(&lik, &past, 1.5, false).unwrap();
+    assert!(trusted.past_joined);
+    assert_eq!(trusted.frame.group, vec![1, 2]);
+    // ... unless it is doubtful: the frame alone.
+    let doubtful = tracker.track_with_past(&lik, &past, 1.5, true).unwrap();
+    assert!(!doubtful.past_joined);
+    assert_eq!(doubtful.frame.estimate, alone.estimate);
+    assert_eq!(doubtful.frame.group, alone.group);
+    // A frame whose features do not all agree (threshold 0.5: 0.70 is beyond it) weighs a
+    // doubtful past as any other.
+    tracker.settings.conflict_threshold = crate::evidence::ConflictLevel::Finite(0.5);
+    let split = |doubtful| tracker.track_with_past(&lik, &past, 1.5, doubtful).unwrap();
+    let (a, b) = (split(false), split(true));
+    assert_eq!(
+        (a.past_joined, &a.frame.group),
+        (b.past_joined, &b.frame.group)
+    );
+    assert_eq!(a.frame.estimate, b.frame.estimate);
 }

@@ -21,7 +21,7 @@ use super::frame::{members, Frame, PastTerm};
 use super::Continuous;
 use crate::estimator::inputs::frame_values;
 use crate::estimator::motion::{
-    learned_reliability, motion_error, VelocityLine, DEFAULT_RELIABILITY,
+    learned_reliability, motion_error, IncoherentFrames, VelocityLine, DEFAULT_RELIABILITY,
 };
 use crate::estimator::{
     ContinuousSettings, EstimatorError, MotionTracker, PlausibilityRegion, PoseEstimate,
@@ -195,6 +195,8 @@ impl PoseEstimator for ContinuousTemporal {
 /// The last measured frame: its time, estimate and the spread of its belief (mm).
 #[derive(Debug, Clone, Copy)]
 struct Last {
+    /// Its usable features together were beyond the conflict threshold.
+    incoherent: bool,
     time: f64,
     pose: [f64; 2],
     scale: f64,
@@ -208,12 +210,15 @@ struct ContinuousMotion<'a> {
 }
 
 impl ContinuousMotion<'_> {
-    /// Whether a frame of this detection score is not carried (`temporal.skip_incoherent`):
-    /// its usable features together are beyond the conflict threshold (or it has no score).
-    fn skips(&self, detection_score: Option<f64>) -> bool {
-        let estimator = self.estimator;
-        estimator.file.settings.skip_incoherent
-            && !detection_score.is_some_and(|score| estimator.inner.threshold().admits(score))
+    /// Whether a frame of this detection score (the level of all its usable features) is
+    /// beyond the conflict threshold (or has no score).
+    fn incoherent(&self, detection_score: Option<f64>) -> bool {
+        let threshold = self.estimator.inner.threshold();
+        !detection_score.is_some_and(|score| threshold.admits(score))
+    }
+
+    fn policy(&self) -> IncoherentFrames {
+        self.estimator.file.settings.incoherent_frames
     }
 }
 
@@ -238,7 +243,8 @@ impl MotionTracker for ContinuousMotion<'_> {
         let model = &self.estimator.inner;
         let Some(last) = self.past else {
             let estimate = model.estimate(features)?;
-            let carried = !self.skips(estimate.detection_score);
+            let incoherent = self.incoherent(estimate.detection_score);
+            let carried = !(incoherent && self.policy() == IncoherentFrames::Skipped);
             if let (Some(pose), true) = (estimate.pose, carried) {
                 let mut frame = Frame::new(
                     model,
@@ -250,7 +256,12 @@ impl MotionTracker for ContinuousMotion<'_> {
                     .flatten()
                     .fold(0, |m: GroupMask, &i| m | 1 << i);
                 let scale = broadest_spread(frame.fit(group).curvature);
-                self.past = Some(Last { time, pose, scale });
+                self.past = Some(Last {
+                    incoherent,
+                    time,
+                    pose,
+                    scale,
+                });
                 let own = estimate.group.as_ref().map_or(0, Vec::len);
                 let weight = self.estimator.file.settings.past_weight_for(features.len());
                 self.line.feed(time, Some(pose), own, weight, false);
@@ -308,7 +319,19 @@ impl MotionTracker for ContinuousMotion<'_> {
         );
         let weight = settings.past_weight_for(features);
         let frame_choice = alone.chosen.map(|(_, group)| (group, alone.fallback));
-        let past_joins = past_outweighs(frame_choice, with_past, weight);
+        // A past from an incoherent frame may not outweigh a feature of a coherent frame (all
+        // its usable features chosen, and within the threshold together: `combine = "all"`
+        // chooses them all whatever their level).
+        let detection_score = frame.grid_level(usable, f64::INFINITY).value;
+        let incoherent = self.incoherent(Some(detection_score));
+        let coherent = !incoherent
+            && !alone.fallback
+            && alone.chosen.is_some_and(|(_, group)| group == usable);
+        let doubtful = last.incoherent && self.policy() == IncoherentFrames::Outweighed;
+        let past_joins = match doubtful && coherent && with_past != usable {
+            true => false,
+            false => past_outweighs(frame_choice, with_past, weight),
+        };
         let (group, level) = match (past_joins, alone.chosen) {
             (true, _) => {
                 if with_past == 0 {
@@ -341,9 +364,9 @@ impl MotionTracker for ContinuousMotion<'_> {
         } else {
             spread
         };
-        let detection_score = frame.grid_level(usable, f64::INFINITY).value;
-        if !self.skips(Some(detection_score)) {
+        if !(incoherent && self.policy() == IncoherentFrames::Skipped) {
             self.past = Some(Last {
+                incoherent,
                 time,
                 pose: fit.pose,
                 scale,

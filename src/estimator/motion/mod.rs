@@ -52,14 +52,30 @@ pub struct TemporalSettings {
     /// `evidential_temporal` to the RMS of the line's last five misses.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub velocity_spread: Option<f64>,
-    /// `evidential_temporal` and `continuous_temporal`: a frame whose usable features together
-    /// are beyond the conflict threshold still gets its estimate, but is not carried: the past
-    /// and the velocity line stay as the last frame within it left them, and the reach grows
-    /// with the time since. A bright box or glare corrupts every global feature; carried, that
-    /// frame's wrong pose joins the next clean frame (it counts as half the features) and pulls it
-    /// millimetres off.
-    #[serde(skip_serializing_if = "is_false")]
-    pub skip_incoherent: bool,
+    /// `evidential_temporal` and `continuous_temporal`: what becomes of a frame whose usable
+    /// features together are beyond the conflict threshold (a bright box or glare corrupts every
+    /// global feature), as the past of the next frame.
+    pub incoherent_frames: IncoherentFrames,
+}
+
+/// What the temporal trackers carry from a frame whose usable features together are beyond the
+/// conflict threshold (`temporal.incoherent_frames`).
+///
+/// Carried as any other, such a frame's pose (mm off under a bright box) joins the next clean
+/// frame with all but one of its features, the past counting as half of them, and pulls it off.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IncoherentFrames {
+    /// Carried as any other frame (before the twenty-first session).
+    Carried,
+    /// Carried, but a next frame whose usable features all agree keeps them all: the past joins
+    /// it only beside every one of them.
+    #[default]
+    Outweighed,
+    /// Not carried: the past and the velocity line stay as the last frame within the threshold
+    /// left them, the reach growing with the time since (costs bursts of struck frames their
+    /// chain).
+    Skipped,
 }
 
 /// The reliabilities tried when learning α.
@@ -86,7 +102,7 @@ impl Default for TemporalSettings {
             velocity_frames: 3,
             learn_velocity: true,
             velocity_spread: None,
-            skip_incoherent: false,
+            incoherent_frames: IncoherentFrames::default(),
         }
     }
 }
@@ -235,10 +251,6 @@ pub(crate) fn learned_motion(
         }
     }
     Ok(best.map(|(_, choice)| choice))
-}
-
-fn is_false(value: &bool) -> bool {
-    !*value
 }
 
 fn is_true(value: &bool) -> bool {
