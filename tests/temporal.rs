@@ -436,29 +436,33 @@ share = 0.3
 "#;
 
 /// Each method's frames (as JSON: every bit, NaN included) of the `BESIDE` run with
-/// `estimators`, on a workbench of its own; the run is dropped before returning, so nothing it
-/// fitted stays live for the next run to share.
+/// `estimators` ([`records_of`]).
 fn frames_beside(estimators: &[&str], learn: bool) -> Vec<(String, String)> {
     let list = format!("{estimators:?}");
     let text = BESIDE
         .replace("ESTIMATORS", &list)
         .replace("LEARN", &learn.to_string());
-    let set = evitrack::scenario::ScenarioSet::parse(&text, "beside").unwrap();
+    let records = records_of(&text);
+    estimators
+        .iter()
+        .map(|&m| {
+            let own: Vec<_> = (records.iter()).filter(|r| r.method == m).collect();
+            assert_eq!(own.len(), 60, "{m}");
+            (m.to_string(), serde_json::to_string(&own).unwrap())
+        })
+        .collect()
+}
+
+/// The frames of the scenario `text`, run on a workbench of its own that is dropped before
+/// returning, so nothing it fitted stays live for the next run to share.
+fn records_of(text: &str) -> Vec<evitrack::report::FrameRecord> {
+    let set = evitrack::scenario::ScenarioSet::parse(text, "beside").unwrap();
     let bench = evitrack::experiment::Workbench::new();
     let output = evitrack::experiment::run_all(&[set.base], 1, &bench, &|_, _, _, _| {})
         .pop()
         .unwrap()
         .unwrap();
-    let frames = estimators
-        .iter()
-        .map(|&m| {
-            let own: Vec<_> = (output.records.iter()).filter(|r| r.method == m).collect();
-            assert_eq!(own.len(), 60, "{m}");
-            (m.to_string(), serde_json::to_string(&own).unwrap())
-        })
-        .collect();
-    drop(output);
-    frames
+    output.records
 }
 
 /// A method's numbers do not depend on which others run beside it: the filter with its
@@ -497,15 +501,10 @@ fn errors_around_struck(incoherent_frames: &str) -> Vec<(String, Vec<f64>, Vec<u
         + &format!(
             "[model]\nstates = 24\n[temporal]\nincoherent_frames = \"{incoherent_frames}\"\n"
         );
-    let set = evitrack::scenario::ScenarioSet::parse(&text, "beside").unwrap();
-    let bench = evitrack::experiment::Workbench::new();
-    let output = evitrack::experiment::run_all(&[set.base], 1, &bench, &|_, _, _, _| {})
-        .pop()
-        .unwrap()
-        .unwrap();
+    let records = records_of(&text);
     (methods.iter())
         .map(|&m| {
-            let own: Vec<_> = (output.records.iter()).filter(|r| r.method == m).collect();
+            let own: Vec<_> = (records.iter()).filter(|r| r.method == m).collect();
             let struck = |k: usize| own[k].faults.as_ref().is_some_and(|f| !f.faults.is_empty());
             let first = (0..own.len()).find(|&k| struck(k)).expect("a struck frame");
             let after: Vec<f64> = (1..own.len())

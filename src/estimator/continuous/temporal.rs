@@ -217,6 +217,7 @@ impl ContinuousMotion<'_> {
         !detection_score.is_some_and(|score| threshold.admits(score))
     }
 
+    /// `temporal.incoherent_frames`.
     fn policy(&self) -> IncoherentFrames {
         self.estimator.file.settings.incoherent_frames
     }
