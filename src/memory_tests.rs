@@ -68,12 +68,13 @@ fn the_grid_is_counted_once_and_grows_with_the_features() {
 
 #[test]
 fn the_render_check_from_the_samples_holds_a_field_per_sample() {
-    let fields = |scenario: &crate::scenario::Scenario| -> Option<u64> {
+    let part = |scenario: &crate::scenario::Scenario, what: &str| -> Option<u64> {
         let estimate = of_run(&scenario.check().expect("valid")).expect("planned");
         (estimate.parts.iter())
-            .find(|p| p.what.contains("distance fields"))
+            .find(|p| p.what.contains(what))
             .map(|p| p.bytes)
     };
+    let fields = |scenario: &crate::scenario::Scenario| part(scenario, "distance fields");
     let mut scenario = crate::scenario::Scenario {
         name: "fields".into(),
         ..Default::default()
@@ -103,16 +104,12 @@ fn the_render_check_from_the_samples_holds_a_field_per_sample() {
     scenario.confidence.render_check = Some(true);
     scenario.confidence.render_from = RenderSource::Simulator;
     assert_eq!(fields(&scenario), None, "the renderer keeps none");
-    // Either source keeps the calibration and test frames' silhouettes, 319 words of 64 px each.
-    let estimate = of_run(&scenario.check().expect("valid")).expect("planned");
-    let silhouettes =
-        (estimate.parts.iter()).find(|p| p.what.contains("render check's silhouettes"));
-    // The 200 calibration frames and the default test motion's (10 s at 20 frames/s).
-    let frames = 200 + 200;
-    assert_eq!(silhouettes.map(|p| p.bytes), Some(frames * 319 * 8));
+    // Either source keeps the calibration and test frames' silhouettes, 319 words of 64 px
+    // each: the 200 calibration frames and the default test motion's (10 s at 20 frames/s).
+    let silhouettes = |scenario: &crate::scenario::Scenario| part(scenario, "check's silhouettes");
+    assert_eq!(silhouettes(&scenario), Some((200 + 200) * 319 * 8));
     scenario.confidence.render_check = Some(false);
-    let estimate = of_run(&scenario.check().expect("valid")).expect("planned");
-    assert!(!(estimate.parts.iter()).any(|p| p.what.contains("render check")));
+    assert_eq!(silhouettes(&scenario), None, "turned off");
 }
 
 #[test]

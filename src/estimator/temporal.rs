@@ -272,7 +272,6 @@ impl PoseEstimator for TemporalEvidential {
         Box::new(EvidentialMotion {
             estimator: self,
             past: None,
-            doubtful: false,
             line: VelocityLine::new(self.file.velocity_frames),
             misses: Vec::new(),
         })
@@ -297,15 +296,22 @@ impl PoseEstimator for TemporalEvidential {
 /// One motion under the temporal evidential tracker.
 struct EvidentialMotion<'a> {
     estimator: &'a TemporalEvidential,
-    /// The last frame's time and the contour carried from it (max 1, before moving).
-    past: Option<(f64, Vec<f64>)>,
-    /// The past comes from a frame whose usable features together were beyond the threshold.
-    doubtful: bool,
+    past: Option<Carried>,
     /// The line through the last estimates of frames whose own features outweighed the past.
     line: VelocityLine,
     /// The squared distances between the line's last predictions and those frames' estimates
     /// on the sample weights, at most [`MISS_FRAMES`], oldest first.
     misses: Vec<f64>,
+}
+
+/// The belief carried from the last frame.
+struct Carried {
+    /// The frame's time.
+    time: f64,
+    /// Its contour over the sample poses (max 1, before moving).
+    contour: Vec<f64>,
+    /// Whether it comes from a frame whose usable features together were beyond the threshold.
+    doubtful: bool,
 }
 
 /// How many of the line's last misses set its spread.
@@ -362,30 +368,33 @@ impl MotionTracker for EvidentialMotion<'_> {
         let inner = &self.estimator.inner;
         let tracker = inner.tracker();
         let policy = self.estimator.file.settings.incoherent_frames;
-        let Some((last, contour)) = self.past.take() else {
+        let Some(past) = self.past.take() else {
             let frame = inner.track(features)?;
             let incoherent = self.incoherent(frame.full_conflict_level);
             if incoherent && policy == IncoherentFrames::Skipped {
                 return Ok(pose_estimate(frame));
             }
-            self.past = scaled_to_max(&frame.plausibility).map(|c| (time, c));
-            self.doubtful = incoherent;
+            self.past = scaled_to_max(&frame.plausibility).map(|contour| Carried {
+                time,
+                contour,
+                doubtful: incoherent,
+            });
             let own = frame.group.len();
             let estimate = pose_estimate(frame);
             let weight = self.estimator.file.settings.past_weight_for(features.len());
             self.line.feed(time, estimate.pose, own, weight, false);
             return Ok(estimate);
         };
-        let interval = (time - last).max(0.0);
+        let interval = (time - past.time).max(0.0);
         let reach = self.estimator.file.settings.max_speed * interval;
         let shift = self.line.shift(interval);
-        let moved = self.estimator.buckets.dilate(&contour, reach, shift);
+        let moved = self.estimator.buckets.dilate(&past.contour, reach, shift);
         let alpha = self.estimator.file.reliability;
         let carried: Vec<f64> = moved.iter().map(|&m| 1.0 - alpha + alpha * m).collect();
         let likelihoods = inner.model().frames().likelihoods(features)?;
         let settings = &self.estimator.file.settings;
         let weight = settings.past_weight_for(likelihoods.len());
-        let doubtful = self.doubtful && policy == IncoherentFrames::Outweighed;
+        let doubtful = past.doubtful && policy == IncoherentFrames::Outweighed;
         let outcome = tracker.track_with_past(&likelihoods, &carried, weight, doubtful)?;
         let mut estimate = pose_estimate(outcome.frame.clone());
         if outcome.frame.estimate.is_some() {
@@ -399,10 +408,9 @@ impl MotionTracker for EvidentialMotion<'_> {
             }
             let incoherent = self.incoherent(outcome.frame.full_conflict_level);
             if incoherent && policy == IncoherentFrames::Skipped {
-                self.past = Some((last, contour));
+                self.past = Some(past);
                 return Ok(estimate);
             }
-            self.doubtful = incoherent;
             let own = outcome.frame.group.len();
             // Only frames that would feed the line measure its miss.
             if own as f64 > weight {
@@ -410,11 +418,19 @@ impl MotionTracker for EvidentialMotion<'_> {
             }
             self.line
                 .feed(time, estimate.pose, own, weight, outcome.past_joined);
-            self.past = scaled_to_max(&outcome.frame.plausibility).map(|c| (time, c));
             // Nothing to carry (not expected with an estimate): keep the moved past.
-            if self.past.is_none() {
-                self.past = Some((time, moved));
-            }
+            self.past = Some(match scaled_to_max(&outcome.frame.plausibility) {
+                Some(contour) => Carried {
+                    time,
+                    contour,
+                    doubtful: incoherent,
+                },
+                None => Carried {
+                    time,
+                    contour: moved,
+                    doubtful: past.doubtful,
+                },
+            });
             return Ok(estimate);
         }
         // No usable measurement: the prediction.
@@ -427,7 +443,11 @@ impl MotionTracker for EvidentialMotion<'_> {
             estimate.flags.predicted = true;
             estimate.flags.combination_failed = false;
         }
-        self.past = Some((time, moved));
+        self.past = Some(Carried {
+            time,
+            contour: moved,
+            doubtful: past.doubtful,
+        });
         Ok(estimate)
     }
 }
