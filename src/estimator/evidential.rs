@@ -40,6 +40,9 @@ pub struct Evidential {
     model: EvidentialModel,
     tracker: Tracker,
     names: Vec<String>,
+    /// The variance per axis of the poses a sample pose stands for (mm²), added to the
+    /// covariance it states: s²/12 for a typical spacing s.
+    cell_variance: f64,
 }
 
 impl Evidential {
@@ -187,10 +190,12 @@ impl Evidential {
             .iter()
             .map(|n| n.to_string())
             .collect();
+        let spacing = super::motion::typical_spacing(tracker.model().poses()).unwrap_or(0.0);
         Ok(Self {
             model,
             tracker,
             names,
+            cell_variance: spacing * spacing / 12.0,
         })
     }
 
@@ -252,7 +257,7 @@ impl PoseEstimator for Evidential {
     }
 
     fn estimate(&self, features: &[Option<f64>]) -> Result<PoseEstimate, EstimatorError> {
-        Ok(pose_estimate(self.track(features)?))
+        Ok(self.pose_estimate(self.track(features)?))
     }
 
     fn to_json(&self) -> Result<String, EstimatorError> {
@@ -264,8 +269,23 @@ impl PoseEstimator for Evidential {
     }
 }
 
-/// The seam's view of one frame of the tracker.
-pub(super) fn pose_estimate(frame: FrameEstimate) -> PoseEstimate {
+impl Evidential {
+    /// The seam's view of one frame of the tracker. Its covariance is the weights' spread over
+    /// the sample poses plus the variance of the poses each one stands for (Sheppard's
+    /// correction for grouping): a belief on one sample pose still leaves its whole cell, which
+    /// the spread alone, zero there, would not say.
+    pub(super) fn pose_estimate(&self, frame: FrameEstimate) -> PoseEstimate {
+        let mut estimate = pose_estimate(frame);
+        if let Some(c) = &mut estimate.covariance {
+            c[0][0] += self.cell_variance;
+            c[1][1] += self.cell_variance;
+        }
+        estimate
+    }
+}
+
+/// The seam's view of one frame of the tracker, its covariance the weights' spread alone.
+fn pose_estimate(frame: FrameEstimate) -> PoseEstimate {
     let capped = frame.flags.alternatives_capped;
     PoseEstimate {
         pose: frame.estimate,
@@ -476,6 +496,40 @@ mod tests {
         assert_eq!(words(capped.clone()), "");
         capped.flags.alternatives_capped = true;
         assert_eq!(words(capped), "alternatives_capped:1648");
+    }
+
+    #[test]
+    fn a_belief_on_sample_poses_states_their_cells_variance_too() {
+        use crate::estimator::test_maps::{feature_row, workspace_mesh};
+        use crate::estimator::Labelled;
+        use rand::SeedableRng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        // The 1 mm mesh: each sample pose stands for a 1 mm square, variance 1/12 mm² per axis.
+        let poses = workspace_mesh(20);
+        let rows: Vec<Vec<Option<f64>>> = (poses.iter())
+            .map(|&q| feature_row(4, q, 0.01, &mut rng))
+            .collect();
+        let names: Vec<String> = (0..4).map(|i| format!("f{i}")).collect();
+        let data = TrainingSet::new(
+            &names,
+            Labelled {
+                poses: &poses,
+                rows: &rows,
+            },
+        );
+        let mut settings = EvidentialSettings::default();
+        settings.model.states = crate::model::StateCounts::All(12);
+        let fitted = Evidential::fit(&settings, &data).unwrap();
+        for row in rows.iter().step_by(37) {
+            let frame = fitted.track(row).unwrap();
+            let spread = frame.uncertainty.unwrap().covariance;
+            let stated = fitted.estimate(row).unwrap().covariance.unwrap();
+            for axis in 0..2 {
+                let added = stated[axis][axis] - spread[axis][axis];
+                assert!((added - 1.0 / 12.0).abs() < 1e-12, "{added}");
+            }
+            assert_eq!(stated[0][1], spread[0][1]);
+        }
     }
 
     #[test]

@@ -30,7 +30,6 @@ use std::sync::OnceLock;
 
 use serde::{Deserialize, Serialize};
 
-use super::evidential::pose_estimate;
 use super::motion::{
     learned_motion, motion_error, IncoherentFrames, PoseBuckets, Refinement, TemporalSettings,
     VelocityLine, DEFAULT_RELIABILITY,
@@ -95,8 +94,9 @@ struct TemporalFile {
 }
 
 impl TemporalEvidential {
-    /// Version of the model file format this build writes and reads.
-    pub const FORMAT_VERSION: u32 = 3;
+    /// Version of the model file format this build writes and reads. 4: the evidential
+    /// model's version 3 (its covariance adds the sample poses' cells).
+    pub const FORMAT_VERSION: u32 = 4;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "evidential_temporal";
 
@@ -372,7 +372,7 @@ impl MotionTracker for EvidentialMotion<'_> {
             let frame = inner.track(features)?;
             let incoherent = self.incoherent(frame.full_conflict_level);
             if incoherent && policy == IncoherentFrames::Skipped {
-                return Ok(pose_estimate(frame));
+                return Ok(inner.pose_estimate(frame));
             }
             self.past = scaled_to_max(&frame.plausibility).map(|contour| Carried {
                 time,
@@ -380,7 +380,7 @@ impl MotionTracker for EvidentialMotion<'_> {
                 doubtful: incoherent,
             });
             let own = frame.group.len();
-            let estimate = pose_estimate(frame);
+            let estimate = inner.pose_estimate(frame);
             let weight = self.estimator.file.settings.past_weight_for(features.len());
             self.line.feed(time, estimate.pose, own, weight, false);
             return Ok(estimate);
@@ -396,7 +396,7 @@ impl MotionTracker for EvidentialMotion<'_> {
         let weight = settings.past_weight_for(likelihoods.len());
         let doubtful = past.doubtful && policy == IncoherentFrames::Outweighed;
         let outcome = tracker.track_with_past(&likelihoods, &carried, weight, doubtful)?;
-        let mut estimate = pose_estimate(outcome.frame.clone());
+        let mut estimate = inner.pose_estimate(outcome.frame.clone());
         if outcome.frame.estimate.is_some() {
             estimate.flags.past_rejected = !outcome.past_joined;
             // The past outweighed every feature: the estimate is the prediction.

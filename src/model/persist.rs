@@ -20,8 +20,10 @@ use crate::track::{GroupError, TrackSettings};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// Version of the model file format written by this build (the only one it reads).
-pub const FORMAT_VERSION: u32 = 2;
+/// Version of the model file format written by this build (the only one it reads). 3: the
+/// stated covariance adds the sample poses' cells, so a version-2 file's calibrated radius,
+/// learned without them, is refused rather than applied to wider regions.
+pub const FORMAT_VERSION: u32 = 3;
 
 /// The `method` field of an evidential model file.
 pub const METHOD: &str = "evidential";

@@ -48,14 +48,7 @@ impl Refinement {
         {
             return None;
         }
-        let mut nearest: Vec<f64> = nearest_distinct(poses)
-            .into_iter()
-            .filter(|d| d.is_finite())
-            .collect();
-        if nearest.is_empty() {
-            return None;
-        }
-        nearest.sort_by(f64::total_cmp);
+        let nearest = sorted_nearest(poses)?;
         let spacing = nearest[nearest.len() / 2];
         let widest = nearest[nearest.len() - 1];
         let reach = (widest * std::f64::consts::FRAC_1_SQRT_2).min(MAX_REACH_IN_SPACINGS * spacing);
@@ -218,6 +211,26 @@ impl Refinement {
         }
         (sw > 0.0).then(|| [sx / sw, sy / sw])
     }
+}
+
+/// The typical spacing of `poses`: the median distance from a pose to its nearest distinct one;
+/// `None` without two distinct finite poses.
+pub fn typical_spacing(poses: &[[f64; 2]]) -> Option<f64> {
+    if !poses.iter().flatten().all(|v| v.is_finite()) {
+        return None;
+    }
+    let nearest = sorted_nearest(poses)?;
+    Some(nearest[nearest.len() / 2])
+}
+
+/// The finite nearest-distinct distances of `poses`, ascending; `None` when there is none.
+fn sorted_nearest(poses: &[[f64; 2]]) -> Option<Vec<f64>> {
+    let mut nearest: Vec<f64> = nearest_distinct(poses)
+        .into_iter()
+        .filter(|d| d.is_finite())
+        .collect();
+    nearest.sort_by(f64::total_cmp);
+    (!nearest.is_empty()).then_some(nearest)
 }
 
 /// Each pose's distance to its nearest pose farther than 1e-9 (∞ without one): the poses
@@ -469,6 +482,18 @@ mod tests {
             (e[0] - 19.0).abs() < 0.1 && (e[1] - 19.0).abs() < 0.1,
             "{e:?}"
         );
+    }
+
+    #[test]
+    fn the_typical_spacing_is_the_median_nearest_distance() {
+        assert_eq!(typical_spacing(&mesh()), Some(1.0));
+        // One outlier far off does not move the median.
+        let mut poses = mesh();
+        poses.push([100.0, 100.0]);
+        assert_eq!(typical_spacing(&poses), Some(1.0));
+        assert_eq!(typical_spacing(&[[1.0, 2.0], [1.0, 2.0]]), None);
+        assert_eq!(typical_spacing(&[[0.0, 0.0], [f64::NAN, 1.0]]), None);
+        assert_eq!(typical_spacing(&[]), None);
     }
 
     #[test]
