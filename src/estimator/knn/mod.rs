@@ -27,7 +27,7 @@ use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
 use super::local_plane::{plane_distance, LOCAL_SAMPLES};
-use super::motion::PoseBuckets;
+use super::motion::{typical_spacing, PoseBuckets};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -85,8 +85,10 @@ impl KnnSettings {
 /// Estimate: the weighted mean of the k nearest sample poses in standardised feature space
 /// (Euclidean, over the frame's present features). `uncertainty_radius`: the weighted RMS
 /// distance of those poses from the estimate (with the estimate's weights; 0 when every weight
-/// sits on one pose). Detection score: see the module documentation. No group, no conflict
-/// level.
+/// sits on one pose). Covariance: their weighted second moments plus the variance of the poses
+/// each sample pose stands for, s²/12 per axis for a typical spacing s (so a frame whose weight
+/// sits on one sample still states that sample's cell). Detection score: see the module
+/// documentation. No group, no conflict level.
 #[derive(Debug, Clone)]
 pub struct Knn {
     file: KnnFile,
@@ -96,6 +98,8 @@ pub struct Knn {
     index: Option<index::Index>,
     /// The sample poses in cells, for the detection score's nearest samples.
     grid: PoseBuckets,
+    /// The variance per axis of the poses a sample pose stands for (mm²).
+    cell_variance: f64,
 }
 
 /// The model file, and the fitted state.
@@ -115,8 +119,10 @@ struct KnnFile {
 impl Knn {
     /// Version of the model file format this build writes and reads. 2: the detection score is
     /// the local plane's (issue 27); a version-1 file's calibrated abstention limit was set on
-    /// the nearest distance, so it is refused rather than compared with the new score.
-    pub const FORMAT_VERSION: u32 = 2;
+    /// the nearest distance, so it is refused rather than compared with the new score. 3: the
+    /// covariance adds the sample poses' cells, which a version-2 file's radius was learned
+    /// without.
+    pub const FORMAT_VERSION: u32 = 3;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "knn";
 
@@ -157,8 +163,10 @@ impl Knn {
         let index = index::Index::build(&inputs, dim, file.settings.k, |query, i| {
             squared_distance(&inputs[i * dim..(i + 1) * dim], query, &mask)
         });
+        let spacing = typical_spacing(&file.sample_poses).unwrap_or(0.0);
         Self {
             grid: PoseBuckets::new(&file.sample_poses),
+            cell_variance: spacing * spacing / 12.0,
             file,
             inputs,
             index,
@@ -353,6 +361,8 @@ impl PoseEstimator for Knn {
                     }
                 }
                 let spread = (moments[0][0] + moments[1][1]).sqrt();
+                moments[0][0] += self.cell_variance;
+                moments[1][1] += self.cell_variance;
                 (Some(mean), Some(spread), Some(moments))
             };
         // How far the frame lies from the samples at its answer, over its present features.
