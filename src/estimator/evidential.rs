@@ -41,7 +41,7 @@ pub struct Evidential {
     tracker: Tracker,
     names: Vec<String>,
     /// The variance per axis of the poses a sample pose stands for (mm²), added to the
-    /// covariance it states: s²/12 for a typical spacing s.
+    /// covariance it states ([`super::motion::cell_variance`]).
     cell_variance: f64,
 }
 
@@ -190,12 +190,12 @@ impl Evidential {
             .iter()
             .map(|n| n.to_string())
             .collect();
-        let spacing = super::motion::typical_spacing(tracker.model().poses()).unwrap_or(0.0);
+        let cell_variance = super::motion::cell_variance(tracker.model().poses());
         Ok(Self {
             model,
             tracker,
             names,
-            cell_variance: spacing * spacing / 12.0,
+            cell_variance,
         })
     }
 

@@ -27,7 +27,7 @@ use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
 use super::local_plane::{plane_distance, LOCAL_SAMPLES};
-use super::motion::{typical_spacing, PoseBuckets};
+use super::motion::{cell_variance, PoseBuckets};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -98,7 +98,8 @@ pub struct Knn {
     index: Option<index::Index>,
     /// The sample poses in cells, for the detection score's nearest samples.
     grid: PoseBuckets,
-    /// The variance per axis of the poses a sample pose stands for (mm²).
+    /// The variance per axis of the poses a sample pose stands for (mm²,
+    /// [`super::motion::cell_variance`]).
     cell_variance: f64,
 }
 
@@ -163,10 +164,9 @@ impl Knn {
         let index = index::Index::build(&inputs, dim, file.settings.k, |query, i| {
             squared_distance(&inputs[i * dim..(i + 1) * dim], query, &mask)
         });
-        let spacing = typical_spacing(&file.sample_poses).unwrap_or(0.0);
         Self {
             grid: PoseBuckets::new(&file.sample_poses),
-            cell_variance: spacing * spacing / 12.0,
+            cell_variance: cell_variance(&file.sample_poses),
             file,
             inputs,
             index,

@@ -9,7 +9,7 @@ mod velocity;
 
 pub use dilate::PoseBuckets;
 
-pub use refine::{typical_spacing, Refinement};
+pub use refine::{cell_variance, Refinement};
 pub(crate) use refine::{MAX_POINTS as REFINE_MAX_POINTS, SUBDIVISIONS as REFINE_SUBDIVISIONS};
 pub use velocity::VelocityLine;
 

@@ -213,9 +213,17 @@ impl Refinement {
     }
 }
 
+/// The variance per axis of the poses a sample pose stands for (mm²): s²/12 for the typical
+/// spacing s, a uniform distribution's over a square cell of side s (Sheppard's correction for
+/// grouped values); 0 without two distinct finite poses. An estimate on the sample poses adds it to
+/// the spread of its weights, which is zero when they sit on one pose.
+pub fn cell_variance(poses: &[[f64; 2]]) -> f64 {
+    typical_spacing(poses).map_or(0.0, |s| s * s / 12.0)
+}
+
 /// The typical spacing of `poses`: the median distance from a pose to its nearest distinct one;
 /// `None` without two distinct finite poses.
-pub fn typical_spacing(poses: &[[f64; 2]]) -> Option<f64> {
+fn typical_spacing(poses: &[[f64; 2]]) -> Option<f64> {
     if !poses.iter().flatten().all(|v| v.is_finite()) {
         return None;
     }
@@ -494,6 +502,8 @@ mod tests {
         assert_eq!(typical_spacing(&[[1.0, 2.0], [1.0, 2.0]]), None);
         assert_eq!(typical_spacing(&[[0.0, 0.0], [f64::NAN, 1.0]]), None);
         assert_eq!(typical_spacing(&[]), None);
+        assert_eq!(cell_variance(&mesh()), 1.0 / 12.0);
+        assert_eq!(cell_variance(&[[1.0, 2.0]]), 0.0);
     }
 
     #[test]
