@@ -3,13 +3,14 @@
 //!
 //! Each method states a covariance Σ of its pose per frame ([`PoseEstimate::covariance`]: the
 //! plausibility's spread plus the sample poses' cells, the Laplace covariance, the GP's
-//! predictive variance, the neighbours' or particles' spread). Its nonconformity score on a
-//! frame is the Mahalanobis distance r = √(dᵀ (Σ + f·I)⁻¹ d) of the truth from the estimate, f a
-//! small floor so that a point-mass belief still has a region. On the n validation frames the
-//! ⌈(n+1)·c⌉-th smallest r is the radius q, and a test frame's region is {p : r(p) ≤ q}. If
-//! validation and test frames are exchangeable, the region holds the truth with probability at
-//! least c (Vovk et al., split conformal prediction). That is the assumption: a clean test motion
-//! like the validation motion; a fault breaks it, which is why abstention exists.
+//! predictive variance, the neighbours' spread plus their cells, the particles' spread). Its
+//! nonconformity score on a frame is the Mahalanobis distance r = √(dᵀ (Σ + f·I)⁻¹ d) of the
+//! truth from the estimate, f a small floor so that a point-mass belief still has a region. On
+//! the n validation frames the ⌈(n+1)·c⌉-th smallest r is the radius q, and a test frame's region
+//! is {p : r(p) ≤ q}. If validation and test frames are exchangeable, the region holds the truth
+//! with probability at least c (Vovk et al., split conformal prediction). That is the assumption:
+//! a clean test motion like the validation motion; a fault breaks it, which is why abstention
+//! exists.
 //!
 //! A method abstains (the pose stays, flagged `abstained`, with a region over the whole workspace)
 //! when its detection score lies above the ⌈(n+1)(1 − a)⌉-th smallest validation score (so about a

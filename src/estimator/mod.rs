@@ -132,8 +132,8 @@ pub struct PoseEstimate {
     pub region: Option<PlausibilityRegion>,
     /// The method's own covariance of the pose (mm²): the shape its calibrated region takes
     /// (the plausibility's spread plus the sample poses' cells, the Laplace covariance, the
-    /// GP's predictive variance, the neighbours' or particles' spread, the sample poses' for
-    /// the centre).
+    /// GP's predictive variance, the neighbours' spread plus their cells, the particles' spread,
+    /// the sample poses' for the centre).
     #[serde(default)]
     pub covariance: Option<[[f64; 2]; 2]>,
     /// What deserves attention in this frame.
