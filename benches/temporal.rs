@@ -6,8 +6,8 @@
 //! the sample poses).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use evitrack::estimator::test_maps::{feature_row, workspace_mesh};
-use evitrack::estimator::{EstimatorSettings, Labelled, Method, TemporalEvidential, TrainingSet};
+use evitrack::estimator::test_maps::{feature_row, MeshSamples};
+use evitrack::estimator::{EstimatorSettings, Method, TemporalEvidential};
 use evitrack::model::{ModelSettings, StateCounts};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -34,19 +34,8 @@ fn path() -> Vec<(f64, Vec<Option<f64>>)> {
 
 fn temporal(c: &mut Criterion) {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let names: Vec<String> = (0..FEATURES).map(|i| format!("f{i}")).collect();
-    let poses = workspace_mesh(20);
-    let rows: Vec<_> = poses
-        .iter()
-        .map(|&q| feature_row(FEATURES, q, NOISE, &mut rng))
-        .collect();
-    let data = TrainingSet::new(
-        &names,
-        Labelled {
-            poses: &poses,
-            rows: &rows,
-        },
-    );
+    let samples = MeshSamples::new(20, FEATURES, NOISE, &mut rng);
+    let data = samples.training();
     let mut settings = EstimatorSettings::default();
     settings.evidential.model = ModelSettings {
         states: StateCounts::All(24),

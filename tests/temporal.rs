@@ -528,19 +528,19 @@ fn frames_whose_features_disagree_do_not_pull_the_next_clean_frame_off() {
     let carried = errors_around_struck("carried");
     for policy in ["outweighed", "skipped"] {
         let mended = errors_around_struck(policy);
-        for ((method, before, early), (_, after, early_mended)) in carried.iter().zip(&mended) {
+        for ((method, pulled, early), (_, kept, early_mended)) in carried.iter().zip(&mended) {
             assert_eq!(early, early_mended, "{method}, {policy}");
             assert!(
-                before.len() >= 5,
+                pulled.len() >= 5,
                 "{method}: {} frames after a struck one",
-                before.len()
+                pulled.len()
             );
             let mean = |e: &[f64]| e.iter().sum::<f64>() / e.len() as f64;
             assert!(
-                mean(after) < 0.8 * mean(before),
+                mean(kept) < 0.8 * mean(pulled),
                 "{method}, {policy}: clean frames after a struck one {} mm off, carried {}",
-                mean(after),
-                mean(before)
+                mean(kept),
+                mean(pulled)
             );
         }
     }

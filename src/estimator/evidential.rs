@@ -500,27 +500,14 @@ mod tests {
 
     #[test]
     fn a_belief_on_sample_poses_states_their_cells_variance_too() {
-        use crate::estimator::test_maps::{feature_row, workspace_mesh};
-        use crate::estimator::Labelled;
         use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
         // The 1 mm mesh: each sample pose stands for a 1 mm square, variance 1/12 mm² per axis.
-        let poses = workspace_mesh(20);
-        let rows: Vec<Vec<Option<f64>>> = (poses.iter())
-            .map(|&q| feature_row(4, q, 0.01, &mut rng))
-            .collect();
-        let names: Vec<String> = (0..4).map(|i| format!("f{i}")).collect();
-        let data = TrainingSet::new(
-            &names,
-            Labelled {
-                poses: &poses,
-                rows: &rows,
-            },
-        );
+        let samples = crate::estimator::test_maps::MeshSamples::new(20, 4, 0.01, &mut rng);
         let mut settings = EvidentialSettings::default();
         settings.model.states = crate::model::StateCounts::All(12);
-        let fitted = Evidential::fit(&settings, &data).unwrap();
-        for row in rows.iter().step_by(37) {
+        let fitted = Evidential::fit(&settings, &samples.training()).unwrap();
+        for row in samples.rows.iter().step_by(37) {
             let frame = fitted.track(row).unwrap();
             let spread = frame.uncertainty.unwrap().covariance;
             let stated = fitted.estimate(row).unwrap().covariance.unwrap();

@@ -55,6 +55,44 @@ pub fn workspace_mesh(per_side: usize) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// A sample trajectory of these maps: a mesh of the workspace, each pose's feature row measured
+/// with noise, and the features' names (`f0`, `f1`, …).
+pub struct MeshSamples {
+    /// The features' names.
+    pub names: Vec<String>,
+    /// The mesh's poses (mm).
+    pub poses: Vec<[f64; 2]>,
+    /// One feature row per pose.
+    pub rows: Vec<Vec<Option<f64>>>,
+}
+
+impl MeshSamples {
+    /// The `per_side`² mesh with `features` features each, measured with `noise` drawn from
+    /// `rng` pose by pose.
+    pub fn new(per_side: usize, features: usize, noise: f64, rng: &mut impl Rng) -> Self {
+        let poses = workspace_mesh(per_side);
+        let rows = (poses.iter())
+            .map(|&q| feature_row(features, q, noise, rng))
+            .collect();
+        Self {
+            names: (0..features).map(|i| format!("f{i}")).collect(),
+            poses,
+            rows,
+        }
+    }
+
+    /// The training set of these samples alone.
+    pub fn training(&self) -> super::TrainingSet<'_> {
+        super::TrainingSet::new(
+            &self.names,
+            super::Labelled {
+                poses: &self.poses,
+                rows: &self.rows,
+            },
+        )
+    }
+}
+
 /// `count` poses drawn uniformly from the workspace.
 pub fn workspace_points(count: usize, rng: &mut impl Rng) -> Vec<[f64; 2]> {
     (0..count)

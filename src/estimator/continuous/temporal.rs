@@ -246,7 +246,7 @@ impl MotionTracker for ContinuousMotion<'_> {
             let estimate = model.estimate(features)?;
             let incoherent = self.incoherent(estimate.detection_score);
             let carried = !(incoherent && self.policy() == IncoherentFrames::Skipped);
-            if let (Some(pose), true) = (estimate.pose, carried) {
+            if let Some(pose) = estimate.pose.filter(|_| carried) {
                 let mut frame = Frame::new(
                     model,
                     model.usable(frame_values(features, model.file.header.feature_names.len())?.0),
@@ -329,10 +329,8 @@ impl MotionTracker for ContinuousMotion<'_> {
             && !alone.fallback
             && alone.chosen.is_some_and(|(_, group)| group == usable);
         let doubtful = last.incoherent && self.policy() == IncoherentFrames::Outweighed;
-        let past_joins = match doubtful && coherent && with_past != usable {
-            true => false,
-            false => past_outweighs(frame_choice, with_past, weight),
-        };
+        let past_joins = !(doubtful && coherent && with_past != usable)
+            && past_outweighs(frame_choice, with_past, weight);
         let (group, level) = match (past_joins, alone.chosen) {
             (true, _) => {
                 if with_past == 0 {

@@ -210,31 +210,20 @@ fn the_score_sees_one_corrupted_feature_among_many_and_skips_a_missing_one() {
 
 #[test]
 fn a_frame_on_one_sample_states_that_samples_cell() {
-    use crate::estimator::test_maps::{feature_row, workspace_mesh};
+    use crate::estimator::test_maps::{feature_value, MeshSamples};
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     // The 1 mm mesh: each sample pose stands for a 1 mm square, variance 1/12 mm² per axis.
-    let poses = workspace_mesh(20);
-    let rows: Rows = (poses.iter())
-        .map(|&q| feature_row(4, q, 0.01, &mut rng))
-        .collect();
-    let names: Vec<String> = (0..4).map(|d| format!("f{d}")).collect();
-    let data = TrainingSet::new(
-        &names,
-        Labelled {
-            poses: &poses,
-            rows: &rows,
-        },
-    );
-    let knn = Knn::fit(&KnnSettings::default(), &data).unwrap();
+    let samples = MeshSamples::new(20, 4, 0.01, &mut rng);
+    let knn = Knn::fit(&KnnSettings::default(), &samples.training()).unwrap();
     // On a sample's own features every weight sits on it: no spread, only its cell.
-    let on_sample = knn.estimate(&rows[123]).unwrap();
-    assert_eq!(on_sample.pose, Some(poses[123]));
+    let on_sample = knn.estimate(&samples.rows[123]).unwrap();
+    assert_eq!(on_sample.pose, Some(samples.poses[123]));
     assert_eq!(on_sample.uncertainty_radius, Some(0.0));
     let cell = 1.0 / 12.0;
     assert_eq!(on_sample.covariance, Some([[cell, 0.0], [0.0, cell]]));
     // Between samples the neighbours' spread comes on top of it.
     let between: Vec<Option<f64>> = (0..4)
-        .map(|d| Some(crate::estimator::test_maps::feature_value(d, [0.3, 47.4])))
+        .map(|d| Some(feature_value(d, [0.3, 47.4])))
         .collect();
     let e = knn.estimate(&between).unwrap();
     let spread = e.uncertainty_radius.unwrap();
