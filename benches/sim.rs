@@ -88,6 +88,10 @@ fn render_check(c: &mut Criterion) {
     let observed = renderer.observe(&frame);
     let estimate = Some([at[0] + 0.05, at[1] - 0.05]);
     let mut group = c.benchmark_group("render_check");
+    // A frame's silhouette and stray pixels, once per frame for every method.
+    group.bench_function("observe", |b| {
+        b.iter(|| black_box(renderer.observe(black_box(&frame))))
+    });
     group.bench_function("mismatch_simulator", |b| {
         b.iter(|| black_box(renderer.mismatch(&observed, estimate)))
     });

@@ -634,9 +634,9 @@ mod train_settings;
 
 /// `train` with `confidence.render_check` learns the check's limit on the validation frames and
 /// keeps it in the model file; `track --samples` then makes frames under a dark box abstain that
-/// it answers without the check.
+/// it answers without the check, and frames with specks for their stray pixels.
 #[test]
-fn train_learns_the_render_check_and_track_applies_it_under_a_dark_box() {
+fn train_learns_the_render_check_and_track_applies_it_under_a_dark_box_and_specks() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
     let simulate = |name: &str, seed: &str, motion: &str| {
@@ -654,16 +654,27 @@ fn train_learns_the_render_check_and_track_applies_it_under_a_dark_box() {
     let path_motion = r#"kind = "random_path", seed = 5, speed = 6, duration = 10, fps = 10"#;
     simulate("validation", "2", path_motion);
     simulate("test", "3", &path_motion.replace("seed = 5", "seed = 9"));
-    // A dark box over part of every test frame.
-    for entry in std::fs::read_dir(dir.path().join("test/frames")).unwrap() {
-        let file = entry.unwrap().path();
-        let mut frame = image::open(&file).unwrap().to_luma8();
+    // A dark box over part of every test frame, and white specks along the bottom row of every
+    // fourth (frames are numbered in file-name order).
+    let mut files: Vec<_> = std::fs::read_dir(dir.path().join("test/frames"))
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .collect();
+    files.sort();
+    for (i, file) in files.iter().enumerate() {
+        let mut frame = image::open(file).unwrap().to_luma8();
         for y in 12..60 {
             for x in 38..86 {
                 frame.put_pixel(x, y, image::Luma([0]));
             }
         }
-        frame.save(&file).unwrap();
+        if i % 4 == 0 {
+            let bottom = frame.height() - 1;
+            for k in 0..10 {
+                frame.put_pixel(5 + 15 * k, bottom, image::Luma([255]));
+            }
+        }
+        frame.save(file).unwrap();
     }
     let train = |extra: &[&str]| {
         let mut args = vec![
@@ -693,6 +704,8 @@ fn train_learns_the_render_check_and_track_applies_it_under_a_dark_box() {
         .as_f64()
         .expect("a limit");
     assert!(limit > 0.0 && limit < 500.0, "{limit}");
+    // The simulator's clean validation frames show no stray pixel.
+    assert_eq!(model["calibration"]["stray_limit_px"], 0.0, "{model}");
     let track = |samples: bool, out: &str| {
         let (test, model, sample, out) =
             (path("test"), path("model.json"), path("sample"), path(out));
@@ -704,12 +717,26 @@ fn train_learns_the_render_check_and_track_applies_it_under_a_dark_box() {
         std::fs::read_to_string(&out).unwrap()
     };
     let (plain, checked) = (track(false, "plain.csv"), track(true, "checked.csv"));
-    assert!(!plain.contains("render_mismatch"));
-    let flagged = checked.matches("render_mismatch").count();
+    assert!(!plain.contains("render_mismatch") && !plain.contains("stray_pixels"));
+    let rows_with =
+        |word: &str| -> Vec<&str> { (checked.lines()).filter(|row| row.contains(word)).collect() };
+    let flagged = (checked.lines())
+        .filter(|row| row.contains("render_mismatch") || row.contains("stray_pixels"))
+        .count();
     // The check abstains on frames the method answered, and leaves its own abstentions alone.
     let abstained = |csv: &str| csv.matches("abstained").count();
     assert_eq!(abstained(&checked), abstained(&plain) + flagged);
-    assert!(flagged > 0, "{checked}");
+    assert!(!rows_with("render_mismatch").is_empty(), "{checked}");
+    // Every speckled frame the method answered abstains for its stray pixels (so do frames where
+    // the dark box cuts a piece off the robot's silhouette).
+    let frame = |row: &str| row.split(',').nth(2).unwrap().parse::<usize>().unwrap();
+    let stray: Vec<usize> = rows_with("stray_pixels").into_iter().map(frame).collect();
+    let answered = (plain.lines().skip(1))
+        .filter(|row| !row.contains("abstained"))
+        .map(frame);
+    let speckled: Vec<usize> = answered.filter(|i| i % 4 == 0).collect();
+    assert!(speckled.len() > 10, "{plain}");
+    assert!(speckled.iter().all(|i| stray.contains(i)), "{checked}");
     // The simulator's renderer is not a model file's to use.
     let refused = train(
         &[

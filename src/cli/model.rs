@@ -218,7 +218,8 @@ pub struct TrackArgs {
     /// The sample frames the model was trained on (a dataset folder): with a model file that
     /// carries the render check's limit (`confidence.render_check`, on by default), each estimate
     /// whose predicted silhouette misses the frame's by more than that limit abstains (flag
-    /// `render_mismatch`), as in the run.
+    /// `render_mismatch`), as does each frame with more stray pixels than the model's
+    /// calibration frames showed (flag `stray_pixels`), as in the run.
     #[arg(long, value_name = "SAMPLE_DATASET")]
     samples: Option<PathBuf>,
     /// Options given here replace the model's tracker settings.

@@ -61,7 +61,8 @@ impl TrackCheck {
         let sample = super::read_dataset(path)?;
         super::check_polarity(config, &sample, &path.display().to_string())?;
         let what = path.display().to_string();
-        let check = check_from_samples(config, &sample, dataset, &what)?;
+        let check = check_from_samples(config, &sample, dataset, &what)?
+            .with_stray_limit(calibration.stray_limit_px);
         Ok(Some(Self {
             check,
             limit_px,
@@ -70,7 +71,8 @@ impl TrackCheck {
     }
 
     /// Makes `estimate` abstain (flag `render_mismatch`) where the silhouette predicted at it
-    /// misses `image`'s by more than the limit.
+    /// misses `image`'s by more than the limit, or (flag `stray_pixels`) where `image` shows more
+    /// stray pixels than the model's validation frames did.
     pub(super) fn judge(&self, estimate: &mut PoseEstimate, image: &GrayImage) {
         let observed = self.check.observe(image);
         (self.check).judge(estimate, &observed, self.limit_px, &self.calibration);
@@ -155,6 +157,6 @@ pub(super) fn learn_limit(
     let Some(calibrated) = any.downcast_mut::<Calibrated>() else {
         return Ok(None);
     };
-    calibrated.set_render_limit(limit);
+    calibrated.set_render_limits((limit, RenderCheck::stray_limit(&observed)));
     Ok(limit)
 }

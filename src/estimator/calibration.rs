@@ -68,6 +68,10 @@ pub struct Calibration {
     /// applies it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub render_limit_px: Option<f64>,
+    /// The render check's limit of stray pixels (the most any clean calibration frame showed),
+    /// learned with `render_limit_px`; `track --samples` applies it too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stray_limit_px: Option<f64>,
 }
 
 /// The poses a method estimated on its calibration frames, in order (`None`: no estimate).
@@ -209,6 +213,7 @@ impl Calibration {
             validation_abstained: 0.0,
             cell_radii,
             render_limit_px: None,
+            stray_limit_px: None,
         };
         let abstained = estimates
             .iter()
@@ -337,9 +342,11 @@ impl Calibrated {
         &self.calibration
     }
 
-    /// Keeps the render check's limit learned in a run, so its model file carries it.
-    pub fn set_render_limit(&mut self, limit_px: Option<f64>) {
+    /// Keeps the render check's limits learned in a run (mismatch, stray pixels), so its model
+    /// file carries them.
+    pub fn set_render_limits(&mut self, (limit_px, stray_px): (Option<f64>, Option<f64>)) {
         self.calibration.render_limit_px = limit_px;
+        self.calibration.stray_limit_px = stray_px;
     }
 }
 
@@ -464,10 +471,15 @@ impl Calibration {
             cells.check()?;
         }
         positive("max_region_area", self.max_region_area)?;
-        if let Some(limit) = self.render_limit_px {
-            (limit >= 0.0).then_some(()).ok_or_else(|| {
-                format!("`calibration.render_limit_px` is {limit}: it must be a number of pixels")
-            })?;
+        for (name, limit) in [
+            ("render_limit_px", self.render_limit_px),
+            ("stray_limit_px", self.stray_limit_px),
+        ] {
+            if let Some(limit) = limit {
+                (limit >= 0.0).then_some(()).ok_or_else(|| {
+                    format!("`calibration.{name}` is {limit}: it must be a number of pixels")
+                })?;
+            }
         }
         if let Some(limit) = self.detection_limit {
             (!limit.is_nan())

@@ -234,6 +234,11 @@ pub struct EstimateFlags {
     /// method's clean calibration frames (`abstained` is set too).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub render_mismatch: bool,
+    /// The render check made it abstain because the frame shows more stray pixels (on the body's
+    /// side of the threshold, outside the silhouette) than any clean calibration frame: something
+    /// no pose of the robot explains (`abstained` is set too).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stray_pixels: bool,
     /// The splitting policy found more alternatives than its cap (`track.max_alternatives`):
     /// how many it found; the estimate is drawn from the first ones only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -242,7 +247,8 @@ pub struct EstimateFlags {
 
 impl PoseEstimate {
     /// The flags as short words (`missing:…`, `excluded:…`, `fallback`, `combination_failed`,
-    /// `predicted`, `past_rejected`, `abstained`, `render_mismatch`, `alternatives_capped:N`,
+    /// `predicted`, `past_rejected`, `abstained`, `render_mismatch`, `stray_pixels`,
+    /// `alternatives_capped:N`,
     /// `no_estimate`) with
     /// feature `names`; empty when the frame is clean.
     pub fn flag_words(&self, names: &[String]) -> String {
@@ -277,6 +283,9 @@ impl PoseEstimate {
         }
         if flags.render_mismatch {
             parts.push("render_mismatch".into());
+        }
+        if flags.stray_pixels {
+            parts.push("stray_pixels".into());
         }
         if let Some(found) = flags.alternatives_capped {
             parts.push(format!("alternatives_capped:{found}"));

@@ -242,7 +242,7 @@ pub fn run(
         if let (Some(render), Some(limit)) = (&render, &render_limit) {
             let any = estimator.as_mut() as &mut dyn std::any::Any;
             if let Some(calibrated) = any.downcast_mut::<crate::estimator::Calibrated>() {
-                calibrated.set_render_limit(render.limit_to_keep(limit));
+                calibrated.set_render_limits(render.limits_to_keep(limit));
             }
         }
         let mut method_records = Vec::new();
@@ -286,7 +286,8 @@ pub fn run(
         let track_seconds = clock.elapsed().as_secs_f64();
         let mut summary = MethodSummary::new(method.name(), &method_records, per_motion);
         summary.render_check = (render.as_ref().zip(render_limit)).map(|(r, l)| {
-            RenderCheckSummary::of(r.source(), l.limit, r.calibration_frames(), &method_records)
+            let limits = (l.limit, r.stray_limit());
+            RenderCheckSummary::of(r.source(), limits, r.calibration_frames(), &method_records)
         });
         methods.push(summary);
         timings.methods.push(MethodTimings {

@@ -16,9 +16,15 @@
 //!   is in where its centre is). It needs the exact image-formation model: half a pixel of camera
 //!   error already spoils it (docs/results.md).
 //!
-//! The limit learned with silhouettes from the samples is kept in each method's model file
-//! (`calibration.render_limit_px`): `track --samples` applies it to recorded frames, and `train`
-//! learns it on its validation frames. The renderer's limit stays the run's.
+//! **Stray pixels.** Pixels on the body's side of the threshold outside the silhouette (impulse
+//! noise, a bright object, glare over the threshold, a piece an occluder cuts off the robot) fit
+//! no pose and move global features such as the barycentre. Every method but the centre abstains,
+//! flagged `stray_pixels`, on a frame with more than any clean calibration frame shows (the n-th
+//! smallest of n: if exchangeable, at most 1/(n+1) of clean frames exceed it; 0 when simulated).
+//!
+//! The limits learned with silhouettes from the samples are kept in each method's model file
+//! (`calibration.render_limit_px`, `stray_limit_px`): `track --samples` applies them to recorded
+//! frames, and `train` learns them on its validation frames. The renderer's limits stay the run's.
 //!
 //! **Undefined cases abstain.** An estimate that is not finite (or, rendered, that the arms
 //! cannot reach), no estimate, a frame without a silhouette (black, no contrast) or of another
@@ -38,7 +44,7 @@ use crate::estimator::{
     PoseEstimator, RenderSource,
 };
 use crate::faults::FrameFaults;
-use crate::features::{silhouette_pixels, SilhouetteConfig};
+use crate::features::{silhouette_and_stray, silhouette_pixels, SilhouetteConfig};
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
 use crate::sim::{Camera, FiveBar, Part, Primitive, Scene, SimError, SimSettings};
@@ -53,8 +59,9 @@ enum Seen {
     NoImage,
     /// An image showing no silhouette (or of another size than the camera's).
     NoSilhouette,
-    /// The silhouette as the features see it, 64 pixels a word, row-major.
-    Silhouette(Vec<u64>),
+    /// The silhouette as the features see it, 64 pixels a word, row-major, with the count of
+    /// stray pixels beside it.
+    Silhouette { words: Vec<u64>, stray: usize },
 }
 
 impl Observed {
@@ -71,7 +78,17 @@ impl Observed {
     /// Its silhouette's pixels, if it shows one.
     pub fn pixels(&self) -> Option<usize> {
         match &self.0 {
-            Seen::Silhouette(words) => Some(words.iter().map(|w| w.count_ones() as usize).sum()),
+            Seen::Silhouette { words, .. } => {
+                Some(words.iter().map(|w| w.count_ones() as usize).sum())
+            }
+            Seen::NoImage | Seen::NoSilhouette => None,
+        }
+    }
+
+    /// Its stray pixels (module notes), if it shows a silhouette.
+    pub fn stray(&self) -> Option<usize> {
+        match &self.0 {
+            Seen::Silhouette { stray, .. } => Some(*stray),
             Seen::NoImage | Seen::NoSilhouette => None,
         }
     }
@@ -83,6 +100,8 @@ impl Observed {
 pub struct RenderCheck {
     frames: FrameView,
     source: Source,
+    /// Frames with more stray pixels than this abstain (`None`: not checked).
+    stray_limit: Option<f64>,
 }
 
 /// How the features see a frame: its size, the body's polarity, the silhouette's settings.
@@ -103,6 +122,13 @@ impl FrameView {
     fn silhouette(&self, image: &GrayImage) -> Option<Vec<bool>> {
         (image.dimensions() == (self.width, self.height))
             .then(|| silhouette_pixels(image, self.polarity, &self.silhouette))
+            .flatten()
+    }
+
+    /// [`FrameView::silhouette`] with its count of stray pixels.
+    fn silhouette_and_stray(&self, image: &GrayImage) -> Option<(Vec<bool>, usize)> {
+        (image.dimensions() == (self.width, self.height))
+            .then(|| silhouette_and_stray(image, self.polarity, &self.silhouette))
             .flatten()
     }
 }
@@ -149,6 +175,7 @@ impl RenderCheck {
         Ok(Self {
             frames,
             source: Source::Renderer { camera, five_bar },
+            stray_limit: None,
         })
     }
 
@@ -194,6 +221,7 @@ impl RenderCheck {
         Some(Self {
             frames,
             source: Source::Samples(samples),
+            stray_limit: None,
         })
     }
 
@@ -207,12 +235,29 @@ impl RenderCheck {
 
     /// The silhouette of `image` as the features see it.
     pub fn observe(&self, image: &GrayImage) -> Observed {
-        match self.frames.silhouette(image) {
-            Some(p) => Observed(Seen::Silhouette(pack(
-                p.into_iter(),
-                self.frames.pixel_count(),
-            ))),
+        match self.frames.silhouette_and_stray(image) {
+            Some((pixels, stray)) => Observed(Seen::Silhouette {
+                words: pack(pixels.into_iter(), self.frames.pixel_count()),
+                stray,
+            }),
             None => Observed(Seen::NoSilhouette),
+        }
+    }
+
+    /// The stray-pixel limit learned on clean calibration frames `observed`: the most stray
+    /// pixels any of them shows (`None` when none shows a silhouette).
+    pub fn stray_limit(observed: &[Observed]) -> Option<f64> {
+        (observed.iter())
+            .filter_map(Observed::stray)
+            .max()
+            .map(|n| n as f64)
+    }
+
+    /// The check with frames beyond `limit` stray pixels abstaining (`None`: not checked).
+    pub fn with_stray_limit(self, limit: Option<f64>) -> Self {
+        Self {
+            stray_limit: limit,
+            ..self
         }
     }
 
@@ -269,8 +314,9 @@ impl RenderCheck {
     }
 
     /// Makes `estimate` abstain by `calibration`'s rule, flagged `render_mismatch`, where its
-    /// mismatch with `observed` is above `limit_px`; a frame without a pose, already abstained, or
-    /// dropped is left alone.
+    /// mismatch with `observed` is above `limit_px`, and flagged `stray_pixels` where the frame
+    /// has more stray pixels than the check's limit; a frame without a pose, already abstained,
+    /// or dropped is left alone.
     pub fn judge(
         &self,
         estimate: &mut PoseEstimate,
@@ -281,16 +327,19 @@ impl RenderCheck {
         if estimate.pose.is_none() || estimate.flags.abstained || observed.is_dropped() {
             return;
         }
-        if self.mismatch(observed, estimate.pose) > limit_px {
+        let stray = (observed.stray().zip(self.stray_limit)).is_some_and(|(n, l)| n as f64 > l);
+        let mismatch = self.mismatch(observed, estimate.pose) > limit_px;
+        if stray || mismatch {
             calibration.abstain(estimate);
-            estimate.flags.render_mismatch = true;
+            estimate.flags.stray_pixels = stray;
+            estimate.flags.render_mismatch = mismatch;
         }
     }
 
     /// Pixels where the robot rendered at `estimate` and the `observed` silhouette differ;
     /// infinite where either is undefined (module notes).
     pub fn mismatch(&self, observed: &Observed, estimate: Option<[f64; 2]>) -> f64 {
-        let (Seen::Silhouette(seen), Some(at)) = (&observed.0, estimate) else {
+        let (Seen::Silhouette { words: seen, .. }, Some(at)) = (&observed.0, estimate) else {
             return f64::INFINITY;
         };
         let Some(rendered) = self.rendered(at) else {
@@ -411,9 +460,10 @@ impl Harness {
                 false => check,
             };
             let images: Vec<&GrayImage> = data.images().collect();
+            let calibration = on_threads(bench.threads(), &images, |image| check.observe(image));
             Some(Learned {
-                calibration: on_threads(bench.threads(), &images, |image| check.observe(image)),
-                check,
+                check: check.with_stray_limit(RenderCheck::stray_limit(&calibration)),
+                calibration,
             })
         });
         let Some(learned) = learned else {
@@ -514,27 +564,32 @@ impl Harness {
         })
     }
 
-    /// Makes `estimate` abstain, flagged `render_mismatch`, where its mismatch with `observed`
-    /// is above `limit`; a frame without a pose, already abstained, or dropped is left alone.
+    /// Makes `estimate` abstain where its mismatch with `observed` is above `limit` or the frame
+    /// has too many stray pixels ([`RenderCheck::judge`]).
     pub(super) fn judge(
         &self,
         estimate: &mut PoseEstimate,
         observed: &Observed,
         limit: &MethodLimit,
     ) {
-        if let (Some(value), Some(calibration)) = (limit.limit, &limit.calibration) {
-            self.learned
-                .check
-                .judge(estimate, observed, value, calibration);
+        if let Some(calibration) = &limit.calibration {
+            let limit_px = limit.limit.unwrap_or(f64::INFINITY);
+            (self.learned.check).judge(estimate, observed, limit_px, calibration);
         }
     }
 
-    /// The limit a model file keeps: the one learned with silhouettes from the samples (`track
-    /// --samples` can apply it), not the renderer's.
-    pub(super) fn limit_to_keep(&self, limit: &MethodLimit) -> Option<f64> {
-        (self.source() == RenderSource::Samples)
-            .then_some(limit.limit)
-            .flatten()
+    /// The limits a model file keeps (mismatch, stray pixels): those learned with silhouettes
+    /// from the samples (`track --samples` can apply them), not the renderer's.
+    pub(super) fn limits_to_keep(&self, limit: &MethodLimit) -> (Option<f64>, Option<f64>) {
+        match self.source() {
+            RenderSource::Samples => (limit.limit, self.stray_limit()),
+            RenderSource::Simulator => (None, None),
+        }
+    }
+
+    /// The stray-pixel limit learned on the calibration frames.
+    pub(super) fn stray_limit(&self) -> Option<f64> {
+        self.learned.check.stray_limit
     }
 }
 

@@ -88,12 +88,8 @@ fn undefined_frames_and_estimates_have_an_infinite_mismatch() {
     assert!(outside.is_finite() && outside > 100.0, "{outside}");
 }
 
-#[test]
-fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
-    let (sim, check) = check();
-    let w = sim.geometry.workspace;
-    let at = centre(&sim);
-    let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
+/// A run's check with `check`, and a method's limit of `limit_px` (`None`: none learned).
+fn judging(check: &RenderCheck, limit_px: Option<f64>) -> (Harness, MethodLimit) {
     let harness = Harness {
         learned: Arc::new(Learned {
             check: check.clone(),
@@ -102,37 +98,100 @@ fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
         share: 0.01,
     };
     let limit = MethodLimit {
-        limit: Some(50.0),
+        limit: limit_px,
         calibration: Some(Calibration {
             coverage: 0.9,
             radius: Some(2.0),
             floor: 0.0,
             detection_limit: None,
             max_region_area: f64::INFINITY,
-            workspace: w,
+            workspace: SimSettings::default().geometry.workspace,
             validation_frames: 100,
             validation_abstained: 0.0,
             cell_radii: None,
             render_limit_px: None,
+            stray_limit_px: None,
         }),
     };
-    let judged = |observed: &Observed, pose: [f64; 2]| {
-        let mut estimate = PoseEstimate {
-            pose: Some(pose),
-            ..PoseEstimate::default()
-        };
-        harness.judge(&mut estimate, observed, &limit);
-        (estimate.flags.abstained, estimate.flags.render_mismatch)
+    (harness, limit)
+}
+
+/// (abstained, render_mismatch, stray_pixels) of an estimate at `pose` judged on `observed`.
+fn judged(
+    (harness, limit): &(Harness, MethodLimit),
+    observed: &Observed,
+    pose: [f64; 2],
+) -> (bool, bool, bool) {
+    let mut estimate = PoseEstimate {
+        pose: Some(pose),
+        ..PoseEstimate::default()
     };
+    harness.judge(&mut estimate, observed, limit);
+    let flags = &estimate.flags;
+    (flags.abstained, flags.render_mismatch, flags.stray_pixels)
+}
+
+#[test]
+fn a_dropped_frame_is_left_alone_and_a_frame_without_a_silhouette_abstains() {
+    let (sim, check) = check();
+    let at = centre(&sim);
+    let image = render_pose(&sim, at[0], at[1], 1).expect("rendered");
+    let run = judging(&check, Some(50.0));
     let black = GrayImage::new(image.width(), image.height());
-    assert_eq!(judged(&check.observe(&image), at), (false, false));
     assert_eq!(
-        judged(&check.observe(&image), [at[0] + 3.0, at[1]]),
-        (true, true)
+        judged(&run, &check.observe(&image), at),
+        (false, false, false)
     );
-    assert_eq!(judged(&check.observe(&black), at), (true, true));
+    let off = [at[0] + 3.0, at[1]];
+    assert_eq!(
+        judged(&run, &check.observe(&image), off),
+        (true, true, false)
+    );
+    assert_eq!(
+        judged(&run, &check.observe(&black), at),
+        (true, true, false)
+    );
     // Missing data, not evidence: a temporal method's prediction stands.
-    assert_eq!(judged(&Observed::dropped(), at), (false, false));
+    assert_eq!(
+        judged(&run, &Observed::dropped(), at),
+        (false, false, false)
+    );
+}
+
+#[test]
+fn a_frame_with_more_stray_pixels_than_the_calibration_frames_abstains() {
+    let (sim, check) = check();
+    let at = centre(&sim);
+    // Clean frames show no stray pixels: the limit is 0.
+    let calibration: Vec<Observed> = (0..5u32)
+        .map(|k| {
+            let image = render_pose(&sim, at[0], at[1] + 0.5 * f64::from(k), u64::from(k));
+            check.observe(&image.expect("rendered"))
+        })
+        .collect();
+    assert_eq!(RenderCheck::stray_limit(&calibration), Some(0.0));
+    assert_eq!(RenderCheck::stray_limit(&[Observed::dropped()]), None);
+    let clean = render_pose(&sim, at[0], at[1], 7).expect("rendered");
+    let mut salted = clean.clone();
+    for k in 0..12 {
+        // White specks along the top row, far from the robot.
+        salted.put_pixel(5 + 7 * k, 0, image::Luma([255]));
+    }
+    let (clean, salted) = (check.observe(&clean), check.observe(&salted));
+    assert_eq!((clean.stray(), salted.stray()), (Some(0), Some(12)));
+    // At the true pose the silhouettes agree; the specks alone make it abstain, also for a
+    // method without a mismatch limit of its own.
+    let limited = check.clone().with_stray_limit(Some(0.0));
+    for limit_px in [Some(50.0), None] {
+        let run = judging(&limited, limit_px);
+        assert_eq!(judged(&run, &salted, at), (true, false, true));
+        assert_eq!(judged(&run, &clean, at), (false, false, false));
+    }
+    // Unchecked, or below a looser limit, the specks pass.
+    for unchecked in [check.clone(), check.with_stray_limit(Some(12.0))] {
+        let run = judging(&unchecked, Some(50.0));
+        assert_eq!(judged(&run, &salted, at), (false, false, false));
+    }
 }
 
 #[test]

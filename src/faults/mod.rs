@@ -165,6 +165,12 @@ impl FrameFaults {
     pub fn corrupted(&self) -> bool {
         self.dropped || !self.changed.is_empty()
     }
+
+    /// Whether any fault struck the frame, whether or not it changed a feature beyond the
+    /// tolerance: such a frame is not clean, though it may not count as corrupted.
+    pub fn struck(&self) -> bool {
+        self.dropped || !self.faults.is_empty()
+    }
 }
 
 /// A motion's feature rows after the faults, with each frame's ground truth.

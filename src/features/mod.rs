@@ -33,7 +33,8 @@ pub use barycentre::{barycentre, Background};
 pub use external::{ExternalFeatureConfig, MissingValues};
 pub use mesh::{analyse_mesh, FeatureSmoothness, MeshAnalysis, MeshOrder};
 pub use silhouette::{
-    extract_silhouette, silhouette_pixels, Polarity, Silhouette, SilhouetteConfig, Threshold,
+    extract_silhouette, silhouette_and_stray, silhouette_pixels, Polarity, Silhouette,
+    SilhouetteConfig, Threshold,
 };
 pub use size::{distance_from_line, PersistenceDiagram, SizeTable, Window};
 pub use tiles::{TileConfig, TileFeature, MAX_TILES};

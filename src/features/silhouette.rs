@@ -190,6 +190,7 @@ pub fn extract_silhouette(
         label: best_label,
         component: best,
         level,
+        ..
     } = largest_silhouette_component(image, polarity, config)?;
     // Crop to the component's bounding box plus one pixel of background on every side (in padded
     // coordinates the box is x0..=x1, so the crop spans x0 − 1..=x1 + 1, always inside the pad).
@@ -244,6 +245,8 @@ struct Largest {
     component: Component,
     /// The grey level that split the image.
     level: u8,
+    /// Foreground pixels of the mask, in every component.
+    foreground: usize,
 }
 
 /// Threshold, optional opening and labelling of [`extract_silhouette`], up to its largest
@@ -307,6 +310,7 @@ fn largest_silhouette_component(
         label,
         component,
         level,
+        foreground: fg,
     })
 }
 
@@ -317,14 +321,25 @@ pub fn silhouette_pixels(
     polarity: Polarity,
     config: &SilhouetteConfig,
 ) -> Option<Vec<bool>> {
+    silhouette_and_stray(image, polarity, config).map(|(pixels, _)| pixels)
+}
+
+/// [`silhouette_pixels`] with the stray pixels: those on the body's side of the threshold (after
+/// the opening) outside the silhouette, which no pose of the robot explains.
+pub fn silhouette_and_stray(
+    image: &GrayImage,
+    polarity: Polarity,
+    config: &SilhouetteConfig,
+) -> Option<(Vec<bool>, usize)> {
     let w = image.width() as usize;
     let found = largest_silhouette_component(image, polarity, config)?;
+    let stray = found.foreground - found.component.area;
     let pixels = (found.labels.chunks_exact(found.width))
         .skip(1)
         .take(image.height() as usize)
         .flat_map(|row| row[1..=w].iter().map(|&l| l == found.label))
         .collect();
-    Some(pixels)
+    Some((pixels, stray))
 }
 
 /// Label 8-connected components of a padded `mask` (row length `pw`, zero border, consumed) by
@@ -468,6 +483,30 @@ mod tests {
         // The small component is left out; the rectangle's corners are in.
         assert!(!pixels[41] && pixels[10 * 50 + 10] && pixels[29 * 50 + 19]);
         assert!(silhouette_pixels(&GrayImage::new(20, 10), B, &cfg).is_none());
+    }
+
+    #[test]
+    fn stray_pixels_are_the_bodys_side_outside_the_silhouette() {
+        // The 4 × 4 square and two lone specks lie outside the 10 × 20 rectangle; a dark hole
+        // inside it is not stray (no body pixel), nor is anything in a frame of one body.
+        let cfg = SilhouetteConfig::default();
+        let speckled = frame(50, 40, |x, y| {
+            let body = (10..20).contains(&x) && (10..30).contains(&y) && (x, y) != (15, 15);
+            body || (40..44).contains(&x) && y < 4 || [(2, 35), (30, 20)].contains(&(x, y))
+        });
+        let (pixels, stray) = silhouette_and_stray(&speckled, B, &cfg).unwrap();
+        assert_eq!((pixels.iter().filter(|&&p| p).count(), stray), (199, 18));
+        let alone = frame(50, 40, |x, y| {
+            (10..20).contains(&x) && (10..30).contains(&y)
+        });
+        assert_eq!(silhouette_and_stray(&alone, B, &cfg).unwrap().1, 0);
+        // Dark on bright: the body's side is the dark one.
+        let dark = GrayImage::from_fn(30, 20, |x, y| {
+            Luma([if x < 10 || (x, y) == (25, 5) { 20 } else { 220 }])
+        });
+        let dark_cfg = SilhouetteConfig::default();
+        let (_, stray) = silhouette_and_stray(&dark, Polarity::DarkOnBright, &dark_cfg).unwrap();
+        assert_eq!(stray, 1);
     }
 
     #[test]

@@ -2,6 +2,12 @@
 //! mean error of the frames it is surest of), its calibrated regions' coverage and its
 //! abstentions, on clean and corrupted frames apart.
 //!
+//! Clean frames are those no injected fault struck; corrupted ones those whose features a fault
+//! changed (beyond the faults module's tolerance). A frame a fault struck without changing a
+//! feature that much (salt-and-pepper off the body, an occluder beside it) is neither: the image
+//! was not clean, so abstaining there is no false alarm, yet the estimate was not misled either.
+//! It counts over all frames only.
+//!
 //! A method ranks its frames by its own doubt: abstained frames last, then by the area of its
 //! region (the calibrated region's, from its own covariance), then by its uncertainty radius.
 //! Frames it ranks equal are taken in every order equally (the expected risk of a random tie
@@ -36,7 +42,7 @@ impl RegionSummary {
     /// The summary of one method's `records`; `None` when none has a region.
     pub fn of(records: &[FrameRecord]) -> Option<Self> {
         let clean: Vec<&FrameRecord> = (records.iter())
-            .filter(|r| !r.corrupted() && r.estimate.is_some() && r.truth.is_some())
+            .filter(|r| !r.struck() && r.estimate.is_some() && r.truth.is_some())
             .filter(|r| !r.flag_set.abstained)
             .collect();
         let with: Vec<(&FrameRecord, f64)> = (clean.iter())
@@ -182,17 +188,37 @@ pub struct ConfidenceSummary {
     pub abstained_clean: usize,
     /// Corrupted frames on which it abstained.
     pub abstained_corrupted: usize,
+    /// The clean frames (`None` in results written before it was kept: then every frame not
+    /// corrupted).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clean_frames: Option<usize>,
     /// Errors of the frames it answered (an estimate, not abstained).
     pub error_answered: Option<ErrorStats>,
     /// Median area of its regions on the clean frames it answered (mm²).
     pub median_area_answered: Option<f64>,
 }
 
+/// Whether `record` is on the corrupted side (`corrupted`) or the clean one (module notes).
+fn on_side(record: &FrameRecord, corrupted: bool) -> bool {
+    match corrupted {
+        true => record.corrupted(),
+        false => !record.struck(),
+    }
+}
+
 impl ConfidenceSummary {
+    /// The share of the clean frames it abstained on, of a run of `frames` frames of which
+    /// `corrupted` were corrupted (which give the clean frames in results that did not keep
+    /// them).
+    pub fn abstained_clean_share(&self, frames: usize, corrupted: usize) -> f64 {
+        let clean = (self.clean_frames).unwrap_or_else(|| frames.saturating_sub(corrupted));
+        self.abstained_clean as f64 / clean.max(1) as f64
+    }
+
     /// The summary of one method's `records`; `None` when no frame has an estimate.
     pub fn of(records: &[FrameRecord]) -> Option<Self> {
         let faults = records.iter().any(|r| r.faults.is_some());
-        let side = |corrupted: bool| records.iter().filter(move |r| r.corrupted() == corrupted);
+        let side = |corrupted: bool| records.iter().filter(move |r| on_side(r, corrupted));
         let coverage = |corrupted: bool| {
             let with: Vec<bool> = side(corrupted)
                 .filter(|r| r.estimate.is_some())
@@ -219,6 +245,7 @@ impl ConfidenceSummary {
             coverage_corrupted: coverage(true),
             abstained_clean: abstained(false),
             abstained_corrupted: abstained(true),
+            clean_frames: Some(side(false).count()),
             error_answered: ErrorStats::from_errors(&answered),
             median_area_answered: areas.get(areas.len() / 2).copied(),
         })
@@ -236,30 +263,36 @@ pub struct RenderCheckSummary {
     /// Mismatches (pixels) above this made the method abstain (`None`: too few calibration
     /// frames, or the rank fell on an undefined one; then none did).
     pub limit_px: Option<f64>,
+    /// Frames with more stray pixels than this made the method abstain (`None`: not checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stray_limit_px: Option<f64>,
     /// The calibration frames it was learned on.
     pub calibration_frames: usize,
-    /// Clean test frames on which the check made the method abstain (`render_mismatch`).
+    /// Clean test frames on which the check made the method abstain (`render_mismatch` or
+    /// `stray_pixels`).
     pub abstained_clean: usize,
     /// Corrupted test frames on which it did.
     pub abstained_corrupted: usize,
 }
 
 impl RenderCheckSummary {
-    /// The summary of one method's `records`, checked against `limit_px`.
+    /// The summary of one method's `records`, checked against its limits (mismatch, stray).
     pub fn of(
         from: RenderSource,
-        limit_px: Option<f64>,
+        (limit_px, stray_limit_px): (Option<f64>, Option<f64>),
         calibration_frames: usize,
         records: &[FrameRecord],
     ) -> Self {
         let flagged = |corrupted: bool| {
             (records.iter())
-                .filter(|r| r.flag_set.render_mismatch && r.corrupted() == corrupted)
+                .filter(|r| on_side(r, corrupted))
+                .filter(|r| r.flag_set.render_mismatch || r.flag_set.stray_pixels)
                 .count()
         };
         Self {
             from,
             limit_px,
+            stray_limit_px,
             calibration_frames,
             abstained_clean: flagged(false),
             abstained_corrupted: flagged(true),
@@ -271,6 +304,7 @@ impl RenderCheckSummary {
 mod tests {
     use super::*;
     use crate::estimator::{EstimateFlags, PoseEstimate};
+    use crate::faults::FrameFaults;
 
     fn record(error: f64, area: f64, abstained: bool) -> FrameRecord {
         let estimate = PoseEstimate {
@@ -335,5 +369,45 @@ mod tests {
         assert_eq!((s.abstained_clean, s.abstained_corrupted), (1, 0));
         assert_eq!(s.error_answered.unwrap().mean, 2.0);
         assert!(s.clean.is_none(), "no faults: no split");
+        assert_eq!(s.abstained_clean_share(4, 0), 0.25);
+    }
+
+    #[test]
+    fn a_frame_struck_without_a_changed_feature_is_neither_clean_nor_corrupted() {
+        let label = |faults: &[&str], changed: &[usize]| FrameFaults {
+            faults: faults.iter().map(|f| f.to_string()).collect(),
+            changed: changed.to_vec(),
+            dropped: false,
+        };
+        // Clean (covered), struck and changed (abstained), struck alone (abstained), clean
+        // (abstained).
+        let records: Vec<FrameRecord> = [
+            (label(&[], &[]), false),
+            (label(&["salt_pepper"], &[0]), true),
+            (label(&["salt_pepper"], &[]), true),
+            (label(&[], &[]), true),
+        ]
+        .into_iter()
+        .map(|(faults, abstained)| {
+            let mut r = record(1.0, 1.0, abstained).with_faults(faults);
+            r.region_covers = Some(true);
+            r
+        })
+        .collect();
+        let s = ConfidenceSummary::of(&records).unwrap();
+        assert_eq!(s.clean_frames, Some(2));
+        assert_eq!((s.abstained_clean, s.abstained_corrupted), (1, 1));
+        assert_eq!(s.abstained_clean_share(4, 1), 0.5);
+        let frames = |c: &Option<RiskCoverage>| c.as_ref().map(|c| c.frames);
+        assert_eq!((frames(&s.clean), frames(&s.corrupted)), (Some(2), Some(1)));
+        assert_eq!(s.all.frames, 4);
+        // Results written before the count was kept: every frame not corrupted.
+        let old = ConfidenceSummary {
+            clean_frames: None,
+            ..s
+        };
+        assert_eq!(old.abstained_clean_share(4, 1), 1.0 / 3.0);
+        let regions = RegionSummary::of(&records).unwrap();
+        assert_eq!(regions.frames, 1, "the clean frame answered");
     }
 }

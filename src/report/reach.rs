@@ -87,7 +87,7 @@ impl CalibrationReach {
             return None;
         }
         let mut methods: Vec<MethodReach> = Vec::new();
-        for r in records.iter().filter(|r| !r.corrupted()) {
+        for r in records.iter().filter(|r| !r.struck()) {
             let Some(&d) = distance.get(&(r.motion.as_str(), r.frame)) else {
                 continue;
             };

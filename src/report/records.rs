@@ -103,6 +103,12 @@ impl FrameRecord {
     pub fn corrupted(&self) -> bool {
         self.faults.as_ref().is_some_and(FrameFaults::corrupted)
     }
+
+    /// Whether an injected fault struck the frame (changed features or not): the confidence
+    /// figures count as clean only the frames no fault struck.
+    pub fn struck(&self) -> bool {
+        self.faults.as_ref().is_some_and(FrameFaults::struck)
+    }
 }
 
 /// Writes frame records as CSV (the `frames.csv` of a run, and what `track` prints): one row per
@@ -433,7 +439,6 @@ impl RunSummary {
             let faults = m.faults.as_ref();
             let confidence = m.confidence.as_ref();
             let corrupted = faults.map_or(0, |f| f.corrupted_frames);
-            let clean = self.frames.saturating_sub(corrupted).max(1);
             let measured = MeasuredFigures {
                 mean_error: m.error.map(|s| s.mean),
                 missing_share: m.frames_without_estimate as f64 / self.frames.max(1) as f64,
@@ -441,7 +446,8 @@ impl RunSummary {
                 detection_auc: faults.and_then(|f| f.detection_auc),
                 coverage: confidence.and_then(|c| c.coverage_clean),
                 corrupted_coverage: confidence.and_then(|c| c.coverage_corrupted),
-                abstained_share: confidence.map(|c| c.abstained_clean as f64 / clean as f64),
+                abstained_share: confidence
+                    .map(|c| c.abstained_clean_share(self.frames, corrupted)),
                 aurc: confidence.map(|c| c.all.aurc),
             };
             for miss in limits.misses(&measured, bands) {

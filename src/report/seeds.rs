@@ -262,9 +262,9 @@ impl SeedReport {
                     coverage_clean: across(&|c, _| c.coverage_clean),
                     coverage_corrupted: across(&|c, _| c.coverage_corrupted),
                     abstained_clean: across(&|c, r| {
-                        let corrupted = r.method(&side.method)?.faults.as_ref();
-                        let clean = r.frames - corrupted.map_or(0, |f| f.corrupted_frames);
-                        Some(c.abstained_clean as f64 / clean.max(1) as f64)
+                        let faults = r.method(&side.method)?.faults.as_ref();
+                        let corrupted = faults.map_or(0, |f| f.corrupted_frames);
+                        Some(c.abstained_clean_share(r.frames, corrupted))
                     }),
                 })
             })

@@ -152,7 +152,7 @@ pub fn confidence_table(summaries: &[&RunSummary]) -> Option<Table> {
             let Some(c) = &m.confidence else { continue };
             any = true;
             let corrupted = m.faults.as_ref().map_or(0, |f| f.corrupted_frames);
-            let clean = s.frames - corrupted;
+            let clean = (c.clean_frames).unwrap_or(s.frames - corrupted);
             table.push([
                 s.scenario.clone(),
                 m.method.clone(),
