@@ -11,7 +11,7 @@
 //! an isotropic 2-D Gaussian whose per-axis standard deviation is the RMS over x and y of the
 //! predictive standard deviation (latent variance plus noise), in mm. `detection_score` is how
 //! far the frame's standardised features lie from those the samples show at the estimate (every
-//! feature alike, see `local_plane.rs`), so a corrupted feature the kernel ignores still
+//! feature alike, see `local_surface.rs`), so a corrupted feature the kernel ignores still
 //! raises it. Fitting costs O(m³) per optimiser step (m ≤ `max_fit_samples`) and O(n³) once; a
 //! frame costs O(n·D) for the mean and the score and O(n²) for the variance.
 
@@ -22,7 +22,7 @@ use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::inputs::{check_header_features, check_training, frame_values, training_header};
-use super::local_plane::{nearest_by_scan, plane_distance};
+use super::local_surface::{nearest_by_scan, surface_distance};
 use super::samples::{check_exact_gp_count, check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
 use crate::features::FeatureConfig;
@@ -153,7 +153,9 @@ impl Gp {
     /// Version of the model file format this build writes and reads. 2: the detection score is
     /// the local plane's (issue 27); a version-1 file's calibrated abstention limit was set on
     /// the nearest sample's ARD-scaled distance, so it is refused rather than compared with the new score.
-    pub const FORMAT_VERSION: u32 = 2;
+    /// 3: the local surface is quadratic, through 16 samples; a version-2 file's limit was set
+    /// on the plane's score.
+    pub const FORMAT_VERSION: u32 = 3;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "gp";
 
@@ -308,7 +310,7 @@ impl Gp {
     }
 
     /// Predictive mean (mm), the RMS over x and y of the predictive standard deviation (mm) and
-    /// the detection score ([`plane_distance`]), for a complete row of feature values.
+    /// the detection score ([`surface_distance`]), for a complete row of feature values.
     fn predict(&self, values: &[f64]) -> ([f64; 2], f64, f64) {
         let (f, h, file) = (&self.factor, &self.file.hyperparameters, &self.file);
         let standard: Vec<f64> = (values.iter().enumerate())
@@ -345,7 +347,7 @@ impl Gp {
             std * (0.5 * (scales[0].powi(2) + scales[1].powi(2))).sqrt(),
             {
                 let near = nearest_by_scan(pose, &file.sample_poses);
-                plane_distance(
+                surface_distance(
                     &standard,
                     None,
                     pose,

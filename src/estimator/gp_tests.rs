@@ -98,7 +98,7 @@ fn on_the_samples_the_score_is_small_and_its_calibration_round_trips() {
         let e = gp
             .estimate(&r.iter().map(|v| Some(*v)).collect::<Vec<_>>())
             .unwrap();
-        // The plane misses the curved mix by a little (most at the mesh's edges).
+        // The local surface misses the mix (not quite quadratic) by a little, most at the edges.
         let score = e.detection_score.unwrap();
         assert!(score < 0.5, "{score} at {p:?}");
     }

@@ -14,7 +14,7 @@ mod evidential;
 mod gp;
 mod inputs;
 mod knn;
-mod local_plane;
+mod local_surface;
 mod motion;
 mod particle;
 mod registry;

@@ -8,7 +8,7 @@
 //! is searched through a k-d tree when one pays (`index.rs`: exact, the brute force's answer to
 //! the bit); otherwise, and whenever a distance overflows, by brute force: O(n·D) per frame.
 //! `detection_score` is how far the frame's standardised features (those present) lie from a
-//! plane through the samples nearest its answer (`local_plane.rs`, as the GP's): the nearest
+//! quadratic surface through the samples nearest its answer (`local_surface.rs`, as the GP's): the nearest
 //! sample's distance barely rose when a few of many features were corrupted (salt-and-pepper),
 //! since the neighbours moved to poses that absorbed them. Its nearest samples come from the
 //! sample poses' buckets (`PoseBuckets`, the temporal tracker's): a few buckets and O(D) more
@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use super::inputs::{
     check_header_features, check_training, frame_values, scaled_norm, training_header,
 };
-use super::local_plane::{plane_distance, LOCAL_SAMPLES};
+use super::local_surface::{surface_distance, LOCAL_SAMPLES};
 use super::motion::{cell_variance, PoseBuckets};
 use super::samples::{check_samples, kept_samples};
 use super::{EstimateFlags, EstimatorError, PoseEstimate, PoseEstimator, TrainingSet};
@@ -122,8 +122,9 @@ impl Knn {
     /// the local plane's (issue 27); a version-1 file's calibrated abstention limit was set on
     /// the nearest distance, so it is refused rather than compared with the new score. 3: the
     /// covariance adds the sample poses' cells, which a version-2 file's radius was learned
-    /// without.
-    pub const FORMAT_VERSION: u32 = 3;
+    /// without. 4: the local surface is quadratic, through 16 samples; a version-3 file's
+    /// limit was set on the plane's score.
+    pub const FORMAT_VERSION: u32 = 4;
     /// The `method` of its model files.
     pub const METHOD: &'static str = "knn";
 
@@ -367,7 +368,7 @@ impl PoseEstimator for Knn {
             };
         // How far the frame lies from the samples at its answer, over its present features.
         let score = pose.zip(query).map(|(pose, (query, mask, _))| {
-            plane_distance(
+            surface_distance(
                 &query,
                 Some(&mask),
                 pose,
