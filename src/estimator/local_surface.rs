@@ -93,7 +93,7 @@ fn residuals<const N: usize>(
         gram += u * u.transpose();
     }
     // A little ridge on every term but the level keeps it solvable when the poses are collinear
-    // or repeated (then the level is their mean).
+    // or repeated (the terms they cannot tell apart then stay near zero).
     for k in 1..N {
         gram[(k, k)] += 1e-9;
     }

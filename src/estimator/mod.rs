@@ -248,9 +248,8 @@ pub struct EstimateFlags {
 impl PoseEstimate {
     /// The flags as short words (`missing:…`, `excluded:…`, `fallback`, `combination_failed`,
     /// `predicted`, `past_rejected`, `abstained`, `render_mismatch`, `stray_pixels`,
-    /// `alternatives_capped:N`,
-    /// `no_estimate`) with
-    /// feature `names`; empty when the frame is clean.
+    /// `alternatives_capped:N`, `no_estimate`) with feature `names`; empty when the frame is
+    /// clean.
     pub fn flag_words(&self, names: &[String]) -> String {
         let joined = |list: &[usize]| {
             list.iter()

@@ -1,10 +1,11 @@
 //! The render check (`[confidence] render_check`): analysis by synthesis in the harness.
 //!
 //! The robot's silhouette at a method's estimate is compared with the frame's as the features
-//! see it ([`silhouette_pixels`]: the same threshold and largest component): the mismatch is the
-//! number of pixels where the two differ. A method abstains where the mismatch lies above the
-//! ⌈(n+1)(1 − a)⌉-th smallest of its own mismatches on the n clean calibration frames (`a` =
-//! `confidence.render_share`, half the detection score's share by default).
+//! see it ([`crate::features::silhouette_pixels`]: the same threshold and largest component):
+//! the mismatch is the number of pixels where the two differ. A method abstains where the
+//! mismatch lies above the ⌈(n+1)(1 − a)⌉-th smallest of its own mismatches on the n clean
+//! calibration frames (`a` = `confidence.render_share`, half the detection score's share by
+//! default).
 //!
 //! The silhouette at the estimate comes from one of two places (`confidence.render_from`):
 //! - `samples` (the default): predicted from the sample frames a run trains on
@@ -44,7 +45,7 @@ use crate::estimator::{
     PoseEstimator, RenderSource,
 };
 use crate::faults::FrameFaults;
-use crate::features::{silhouette_and_stray, silhouette_pixels, SilhouetteConfig};
+use crate::features::{silhouette_and_stray, SilhouetteConfig};
 use crate::scenario::CheckedScenario;
 use crate::seed::{self, ScenarioPart};
 use crate::sim::{Camera, FiveBar, Part, Primitive, Scene, SimError, SimSettings};
@@ -120,9 +121,7 @@ impl FrameView {
 
     /// The silhouette of `image` (row-major pixel flags); `None` for another size or no body.
     fn silhouette(&self, image: &GrayImage) -> Option<Vec<bool>> {
-        (image.dimensions() == (self.width, self.height))
-            .then(|| silhouette_pixels(image, self.polarity, &self.silhouette))
-            .flatten()
+        self.silhouette_and_stray(image).map(|(pixels, _)| pixels)
     }
 
     /// [`FrameView::silhouette`] with its count of stray pixels.

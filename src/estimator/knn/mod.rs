@@ -8,11 +8,11 @@
 //! is searched through a k-d tree when one pays (`index.rs`: exact, the brute force's answer to
 //! the bit); otherwise, and whenever a distance overflows, by brute force: O(n·D) per frame.
 //! `detection_score` is how far the frame's standardised features (those present) lie from a
-//! quadratic surface through the samples nearest its answer (`local_surface.rs`, as the GP's): the nearest
-//! sample's distance barely rose when a few of many features were corrupted (salt-and-pepper),
-//! since the neighbours moved to poses that absorbed them. Its nearest samples come from the
-//! sample poses' buckets (`PoseBuckets`, the temporal tracker's): a few buckets and O(D) more
-//! per frame.
+//! quadratic surface through the samples nearest its answer (`local_surface.rs`, as the GP's):
+//! the nearest sample's distance barely rose when a few of many features were corrupted
+//! (salt-and-pepper), since the neighbours moved to poses that absorbed them. Its nearest
+//! samples come from the sample poses' buckets (`PoseBuckets`, the temporal tracker's): a few
+//! buckets and O(D) more per frame.
 
 mod index;
 #[cfg(test)]

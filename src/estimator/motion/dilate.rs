@@ -131,8 +131,8 @@ impl PoseBuckets {
     }
 
     /// The `count` finite poses nearest `pose` (all when fewer), by increasing distance, ties to
-    /// the lower index: the samples a scan finds (the local surface's, `local_surface.rs`). Rings of
-    /// buckets around the pose's are searched until no bucket beyond can hold a nearer one.
+    /// the lower index: the samples a scan finds (the local surface's, `local_surface.rs`). Rings
+    /// of buckets around the pose's are searched until no bucket beyond can hold a nearer one.
     pub(crate) fn nearest(&self, pose: [f64; 2], count: usize) -> Vec<usize> {
         let poses = &self.poses;
         let m = poses.len().min(count);
