@@ -157,6 +157,6 @@ pub(super) fn learn_limit(
     let Some(calibrated) = any.downcast_mut::<Calibrated>() else {
         return Ok(None);
     };
-    calibrated.set_render_limits((limit, RenderCheck::stray_limit(&observed)));
+    calibrated.set_render_limits((limit, RenderCheck::learn_stray_limit(&observed)));
     Ok(limit)
 }

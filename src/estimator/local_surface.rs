@@ -51,16 +51,26 @@ pub(super) fn surface_distance(
     rows: &[f64],
     near: &[usize],
 ) -> f64 {
-    let residuals = if near.len() >= QUADRATIC_TERMS {
+    let weights = if near.len() >= QUADRATIC_TERMS {
         let quadratic = |dx: f64, dy: f64| SVector::from([1.0, dx, dy, dx * dx, dx * dy, dy * dy]);
-        residuals(quadratic, query, mask, pose, poses, rows, near)
+        weights_at(quadratic, pose, poses, near)
     } else {
         let plane = |dx: f64, dy: f64| SVector::from([1.0, dx, dy]);
-        residuals(plane, query, mask, pose, poses, rows, near)
+        weights_at(plane, pose, poses, near)
     };
-    let Some(residuals) = residuals else {
+    let Some(weights) = weights else {
         return f64::INFINITY;
     };
+    let dim = query.len();
+    let residuals: Vec<f64> = (0..dim)
+        .map(|d| {
+            if mask.is_some_and(|m| m[d] == 0.0) {
+                return 0.0;
+            }
+            let fitted: f64 = weights.iter().map(|&(w, i)| w * rows[i * dim + d]).sum();
+            query[d] - fitted
+        })
+        .collect();
     let squares: f64 = residuals.iter().map(|r| r.powi(2)).sum();
     if squares.is_finite() {
         squares.sqrt()
@@ -70,18 +80,16 @@ pub(super) fn surface_distance(
     }
 }
 
-/// Per feature, `query` less the least-squares fit of the samples `near` on `basis` (of the
-/// pose offsets from `pose`), read at `pose`; `None` without samples or when the fit cannot be
-/// solved.
-fn residuals<const N: usize>(
+/// The least-squares fit on `basis` (of the pose offsets from `pose`) of values at the samples
+/// `near`, read at `pose`, is linear in those values: each sample's weight in it, with the
+/// sample. The same weights serve every feature. `None` without samples or when the fit cannot
+/// be solved.
+fn weights_at<const N: usize>(
     basis: impl Fn(f64, f64) -> SVector<f64, N>,
-    query: &[f64],
-    mask: Option<&[f64]>,
     pose: [f64; 2],
     poses: &[[f64; 2]],
-    rows: &[f64],
     near: &[usize],
-) -> Option<Vec<f64>> {
+) -> Option<Vec<(f64, usize)>> {
     if near.is_empty() {
         return None;
     }
@@ -97,25 +105,15 @@ fn residuals<const N: usize>(
     for k in 1..N {
         gram[(k, k)] += 1e-9;
     }
-    // The fit's value at the pose is its level, linear in the samples' values: weights once,
-    // then one dot product per feature.
+    // The fit's value at the pose is its level (the first term).
     let level = gram
         .cholesky()?
         .solve(&SVector::<f64, N>::from_fn(|k, _| f64::from(k == 0)));
-    let weights: Vec<(f64, usize)> = (offsets.iter().zip(near))
-        .map(|(u, &i)| (level.dot(u), i))
-        .collect();
-    let dim = query.len();
-    let residuals = (0..dim)
-        .map(|d| {
-            if mask.is_some_and(|m| m[d] == 0.0) {
-                return 0.0;
-            }
-            let fitted: f64 = weights.iter().map(|&(w, i)| w * rows[i * dim + d]).sum();
-            query[d] - fitted
-        })
-        .collect();
-    Some(residuals)
+    Some(
+        (offsets.iter().zip(near))
+            .map(|(u, &i)| (level.dot(u), i))
+            .collect(),
+    )
 }
 
 #[cfg(test)]
@@ -154,7 +152,16 @@ mod tests {
         assert!(distance < 1e-6, "{distance}");
         // The plane through the same samples misses the curved feature by its curvature.
         let plane = |dx: f64, dy: f64| SVector::from([1.0, dx, dy]);
-        let missed = residuals(plane, &query, None, pose, &poses, &rows, &near).unwrap();
+        let weights = weights_at(plane, pose, &poses, &near).unwrap();
+        let missed: Vec<f64> = (0..2)
+            .map(|d| {
+                query[d]
+                    - weights
+                        .iter()
+                        .map(|&(w, i)| w * rows[i * 2 + d])
+                        .sum::<f64>()
+            })
+            .collect();
         assert!(
             missed[0].abs() > 0.1 && missed[1].abs() < 1e-6,
             "{missed:?}"

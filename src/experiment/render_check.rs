@@ -245,7 +245,7 @@ impl RenderCheck {
 
     /// The stray-pixel limit learned on clean calibration frames `observed`: the most stray
     /// pixels any of them shows (`None` when none shows a silhouette).
-    pub fn stray_limit(observed: &[Observed]) -> Option<f64> {
+    pub fn learn_stray_limit(observed: &[Observed]) -> Option<f64> {
         (observed.iter())
             .filter_map(Observed::stray)
             .max()
@@ -461,7 +461,7 @@ impl Harness {
             let images: Vec<&GrayImage> = data.images().collect();
             let calibration = on_threads(bench.threads(), &images, |image| check.observe(image));
             Some(Learned {
-                check: check.with_stray_limit(RenderCheck::stray_limit(&calibration)),
+                check: check.with_stray_limit(RenderCheck::learn_stray_limit(&calibration)),
                 calibration,
             })
         });

@@ -169,8 +169,8 @@ fn a_frame_with_more_stray_pixels_than_the_calibration_frames_abstains() {
             check.observe(&image.expect("rendered"))
         })
         .collect();
-    assert_eq!(RenderCheck::stray_limit(&calibration), Some(0.0));
-    assert_eq!(RenderCheck::stray_limit(&[Observed::dropped()]), None);
+    assert_eq!(RenderCheck::learn_stray_limit(&calibration), Some(0.0));
+    assert_eq!(RenderCheck::learn_stray_limit(&[Observed::dropped()]), None);
     let clean = render_pose(&sim, at[0], at[1], 7).expect("rendered");
     let mut salted = clean.clone();
     for k in 0..12 {
