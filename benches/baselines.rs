@@ -1,12 +1,15 @@
 //! The baseline estimators on 8 smooth synthetic features of the pose (plus a little noise):
 //! fitting on 400 (20 × 20 mesh) and 1,521 (39 × 39) samples over [−9.5, 9.5] × [38, 57] mm,
 //! and one frame's estimate; k-NN also per frame on 10,000 samples (100 × 100), where its k-d
-//! tree matters, with 8 features and with 2, 32 and 64.
+//! tree matters, with 8 features and with 2, 32 and 64. Also learning a calibration (regions
+//! and abstention limit) from 400 validation estimates, with and without the stretched limit.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use evitrack::estimator::{
-    Centre, CentreSettings, Gp, GpSettings, Knn, KnnSettings, PoseEstimator,
+    Calibration, Centre, CentreSettings, ConfidenceSettings, Gp, GpSettings, Knn, KnnSettings,
+    PoseEstimate, PoseEstimator,
 };
+use evitrack::planar::Rect;
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -88,5 +91,50 @@ fn knn_features(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, fit, estimate, knn_features);
+/// 400 validation estimates about a fixed truth, each with its covariance and a detection score.
+fn validation_estimates() -> (Vec<PoseEstimate>, Vec<[f64; 2]>) {
+    (0..400)
+        .map(|i| {
+            let phase = f64::from(i) * 0.37;
+            let sigma = 0.05 + 0.01 * f64::from(i % 7);
+            let estimate = PoseEstimate {
+                pose: Some([sigma * phase.sin(), 47.5 + sigma * phase.cos()]),
+                detection_score: Some(6.0 + 3.0 * (phase * 1.7).sin().abs() + f64::from(i % 13)),
+                covariance: Some([[sigma * sigma, 0.0], [0.0, sigma * sigma]]),
+                ..PoseEstimate::default()
+            };
+            (estimate, [0.0, 47.5])
+        })
+        .unzip()
+}
+
+fn calibration(c: &mut Criterion) {
+    let mut group = c.benchmark_group("calibration_learn_400");
+    let (estimates, truth) = validation_estimates();
+    let workspace = Rect {
+        x_min: -9.5,
+        x_max: 9.5,
+        y_min: 38.0,
+        y_max: 57.0,
+    };
+    for stretch in [0.0, 0.5] {
+        let settings = ConfidenceSettings {
+            detection_stretch: stretch,
+            ..ConfidenceSettings::default()
+        };
+        group.bench_function(BenchmarkId::new("stretch", stretch), |b| {
+            b.iter(|| {
+                black_box(Calibration::from_validation(
+                    black_box(&estimates),
+                    &truth,
+                    workspace,
+                    &settings,
+                ))
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, fit, estimate, knn_features, calibration);
 criterion_main!(benches);

@@ -13,8 +13,11 @@
 //! exists.
 //!
 //! A method abstains (the pose stays, flagged `abstained`, with a region over the whole workspace)
-//! when its detection score lies above the ⌈(n+1)(1 − a)⌉-th smallest validation score (so about a
-//! share a of clean frames abstain), when the score is not finite (total conflict), when it fell
+//! when its detection score lies above the ⌈(n+1)(1 − a)⌉-th smallest validation score q (so about
+//! a share a of clean frames like the validation motion's abstain), stretched to q + κ·(q − m),
+//! m the median score (`detection_stretch`: a test motion that visits poses the validation passes
+//! less scores a little above every validation frame, a fault far above), when the score is not
+//! finite (total conflict), when it fell
 //! back to one feature or its combination failed, or when its region would exceed
 //! `max_region_share` of the workspace.
 
@@ -95,6 +98,17 @@ pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
         .then(|| sorted.get(rank - 1).copied())
         .flatten()
         .filter(|v| v.is_finite())
+}
+
+/// `limit` moved `stretch` times its distance from the median of `scores` further out (left
+/// where that median is not finite).
+fn stretched(limit: f64, scores: &[f64], stretch: f64) -> f64 {
+    let mut sorted: Vec<f64> = scores.iter().copied().filter(|v| !v.is_nan()).collect();
+    sorted.sort_by(f64::total_cmp);
+    match sorted.get(sorted.len() / 2) {
+        Some(&median) if median.is_finite() => limit + stretch * (limit - median).max(0.0),
+        _ => limit,
+    }
 }
 
 /// (Σ + f·I) with its inverse and determinant; `None` unless positive definite.
@@ -195,7 +209,8 @@ impl Calibration {
         let detection_limit = (!detections.is_empty())
             .then(|| {
                 let share = settings.detection_share(estimates.len());
-                conformal_quantile(&detections, 1.0 - share)
+                let limit = conformal_quantile(&detections, 1.0 - share)?;
+                Some(stretched(limit, &detections, settings.detection_stretch))
             })
             .flatten();
         let cell_radii = settings.cells.map(|cells| {

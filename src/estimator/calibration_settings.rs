@@ -16,6 +16,13 @@ pub struct ConfidenceSettings {
     /// the render check together: where the check runs it takes `render_share` of it and the
     /// detection score the rest ([`ConfidenceSettings::detection_share`]).
     pub abstain_share: f64,
+    /// The detection limit lies this many times its distance from the median calibration score
+    /// beyond the split-conformal quantile (0: the quantile itself). The quantile holds its
+    /// share on frames exchangeable with the calibration motion's; a test motion that visits
+    /// poses the calibration passes less (the paper's Lissajous) shows clean scores a little
+    /// above every calibration score, while a fault's lie far beyond it (docs/results.md, "A
+    /// stretched detection limit").
+    pub detection_stretch: f64,
     /// A region larger than this share of the workspace's area makes the method abstain.
     pub max_region_share: f64,
     /// The render check: each method but the centre also abstains where the robot's silhouette
@@ -44,6 +51,7 @@ pub struct ConfidenceSettings {
 }
 
 const DEFAULT_RENDER_SHARE: f64 = 0.005;
+const DEFAULT_DETECTION_STRETCH: f64 = 0.5;
 
 fn is_default_render_share(share: &f64) -> bool {
     *share == DEFAULT_RENDER_SHARE
@@ -71,6 +79,7 @@ impl Default for ConfidenceSettings {
         Self {
             coverage: 0.9,
             abstain_share: 0.01,
+            detection_stretch: DEFAULT_DETECTION_STRETCH,
             max_region_share: 0.5,
             render_check: None,
             render_from: RenderSource::Samples,
@@ -112,6 +121,8 @@ impl ConfidenceSettings {
         within(self.coverage, 0.5..=0.999).map_err(|e| format!("`confidence.coverage`: {e}"))?;
         within(self.abstain_share, 0.0..=0.5)
             .map_err(|e| format!("`confidence.abstain_share`: {e}"))?;
+        within(self.detection_stretch, 0.0..=10.0)
+            .map_err(|e| format!("`confidence.detection_stretch`: {e}"))?;
         within(self.render_share, 0.0..=0.5)
             .map_err(|e| format!("`confidence.render_share`: {e}"))?;
         within(self.max_region_share, 0.01..=1.0)

@@ -194,6 +194,41 @@ fn scores_beyond_clean_validation_frames_and_total_conflict_abstain() {
 }
 
 #[test]
+fn a_stretched_detection_limit_lies_beyond_the_quantile_by_its_distance_from_the_median() {
+    let truth = vec![[5.0, 5.0]; 199];
+    let limit = |offset: f64, stretch: f64| {
+        // Scores 1…199 (median 100), shifted: the stretch does not depend on where zero is.
+        let estimates: Vec<PoseEstimate> = (1..=199)
+            .map(|i| estimate([5.0, 5.0], 0.1, Some(f64::from(i) + offset)))
+            .collect();
+        let settings = ConfidenceSettings {
+            render_check: Some(false),
+            detection_stretch: stretch,
+            ..ConfidenceSettings::default()
+        };
+        Calibration::from_validation(&estimates, &truth, workspace(), &settings)
+            .detection_limit
+            .unwrap()
+    };
+    // The ⌈0.99 × 200⌉ = 198th score, then half of its 98 beyond the median further out.
+    assert_eq!(limit(0.0, 0.0), 198.0);
+    assert_eq!(limit(0.0, 0.5), 247.0);
+    assert_eq!(limit(-1000.0, 0.5), 247.0 - 1000.0);
+    // Infinite scores (total conflict) rank last and leave a finite median alone.
+    let mut scores = vec![f64::INFINITY; 2];
+    scores.extend((1..=7).map(f64::from));
+    assert_eq!(stretched(10.0, &scores, 1.0), 10.0 + (10.0 - 5.0));
+    assert_eq!(stretched(10.0, &[f64::INFINITY; 3], 1.0), 10.0);
+    assert!(ConfidenceSettings {
+        detection_stretch: -0.1,
+        ..ConfidenceSettings::default()
+    }
+    .check()
+    .unwrap_err()
+    .contains("detection_stretch"));
+}
+
+#[test]
 fn too_few_validation_frames_give_whole_workspace_regions() {
     let (validation, truth) = draws(5, 4);
     let calibration = Calibration::from_validation(

@@ -175,6 +175,7 @@ pub const KEY_COMMENTS: &[(&str, &str)] = &[
     ("confidence", "Every method's regions and abstentions, learned on the calibration motion. render_check,\nwhen left out, is on wherever that motion has frames enough for its limit (199 at render_share 0.005)."),
     ("confidence.coverage", "Share of clean frames the regions hold."),
     ("confidence.abstain_share", "Share of clean calibration frames a method may abstain on, by its detection score and the\nrender check together (where the check runs it takes render_share of it)."),
+    ("confidence.detection_stretch", "The detection limit lies this many times its distance from the median calibration score\nbeyond the conformal quantile (0: the quantile), for test motions that visit poses the calibration passes less."),
     ("confidence.max_region_share", "Largest region (share of the workspace) before abstaining."),
     ("confidence.cells", "A region quantile per cell of an [nx, ny] grid over the workspace, by the estimate's cell (Mondrian conformal); cells with under 20 calibration frames keep the overall one."),
     ("confidence.render_check", "Also abstain where the robot's silhouette at the estimate misses the frame's (run, sweep;\ntrain learns it on --validation; track applies it with --samples); true asks for it, false turns it off."),
