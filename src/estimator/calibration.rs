@@ -14,12 +14,11 @@
 //!
 //! A method abstains (the pose stays, flagged `abstained`, with a region over the whole workspace)
 //! when its detection score lies above the ⌈(n+1)(1 − a)⌉-th smallest validation score q (so about
-//! a share a of clean frames like the validation motion's abstain), stretched to q + κ·(q − m),
-//! m the median score (`detection_stretch`: a test motion that visits poses the validation passes
-//! less scores a little above every validation frame, a fault far above), when the score is not
-//! finite (total conflict), when it fell
-//! back to one feature or its combination failed, or when its region would exceed
-//! `max_region_share` of the workspace.
+//! a share a of clean frames like the validation motion's abstain) stretched to q + κ·(q − m), m
+//! the median score (`detection_stretch`: a test motion that visits poses the validation passes
+//! less scores a little above every validation frame, a fault far above); when the score is not
+//! finite (total conflict); when it fell back to one feature or its combination failed; or when
+//! its region would exceed `max_region_share` of the workspace.
 
 use std::sync::Arc;
 
