@@ -99,14 +99,12 @@ pub(crate) fn conformal_quantile(values: &[f64], share: f64) -> Option<f64> {
         .filter(|v| v.is_finite())
 }
 
-/// `limit` moved `stretch` times its distance from the median of `scores` further out (left
-/// where that median is not finite).
+/// `limit` moved `stretch` times its distance from the median of `scores` (their conformal
+/// quantile at one half) further out; left where that median is not finite.
 fn stretched(limit: f64, scores: &[f64], stretch: f64) -> f64 {
-    let mut sorted: Vec<f64> = scores.iter().copied().filter(|v| !v.is_nan()).collect();
-    sorted.sort_by(f64::total_cmp);
-    match sorted.get(sorted.len() / 2) {
-        Some(&median) if median.is_finite() => limit + stretch * (limit - median).max(0.0),
-        _ => limit,
+    match conformal_quantile(scores, 0.5) {
+        Some(median) => limit + stretch * (limit - median).max(0.0),
+        None => limit,
     }
 }
 
